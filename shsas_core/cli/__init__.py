@@ -1,0 +1,66 @@
+"""The ``shsas`` command line. Each subcommand lives in its own module of this package.
+
+Every module in :data:`COMMANDS` defines ``register(subparsers)`` which adds one subparser and
+sets ``func=callable(args) -> int``. Errors caused by input (:class:`ShsasError`) become one
+line on stderr and exit code 2; a traceback is shown only with ``--debug``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from .. import __version__
+from ..errors import Cancelled, ShsasError
+
+#: Subcommand modules, in the order of the help text (data flow order).
+COMMANDS = ["info", "convert"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="shsas",
+        description="3D reconstruction from synthetic aperture sonar: spherical-harmonic neural "
+        "scattering fields (SH-SAS), the isotropic neural baseline (Reed et al., L=0) and "
+        "time-domain backprojection.",
+        epilog="Run `shsas COMMAND --help` for the options of each command. Docs: docs/usage.md",
+    )
+    parser.add_argument("--version", action="version", version=f"shsas {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f".{name}", __name__).register(sub)
+    return parser
+
+
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except ShsasError as exc:
+        if args.debug:
+            raise
+        print(f"shsas {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except Cancelled:
+        print(f"shsas {args.command}: cancelled", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print(f"shsas {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except (FileNotFoundError, IsADirectoryError, PermissionError) as exc:
+        if args.debug:
+            raise
+        print(f"shsas {args.command}: error: {exc.strerror}: {exc.filename}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,29 @@
+"""`shsas convert IN OUT.h5`: import any supported survey format into the canonical file."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "convert", help="import a survey (AirSAS CSV folder/.zip/.pkl, SVSS HDF5) into canonical HDF5",
+        description="Convert a survey into the canonical shsas HDF5 file (docs/formats.md). "
+        "The input format is detected from its contents.")
+    p.add_argument("input", help="input survey: file or folder")
+    p.add_argument("output", help="output .h5 path")
+    p.add_argument("--format", default="auto",
+                   help="force the input format (auto, shsas, airsas-csv, airsas-pickle, svss)")
+    p.add_argument("--compression", choices=["none", "gzip", "lzf"], default="none",
+                   help="compress sample arrays (default none: fastest to read)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..importers import load_survey
+    from ..io import write_survey
+
+    survey = load_survey(args.input, fmt=args.format)
+    out = write_survey(survey, args.output, compression=None if args.compression == "none" else args.compression)
+    print(f"wrote {out} ({survey.num_pings} pings x {survey.num_samples} samples)")
+    return 0

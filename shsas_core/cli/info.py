@@ -1,0 +1,36 @@
+"""`shsas info FILE`: summary of a survey without loading its samples."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "info", help="summarise a survey file (pings, samples, band, geometry, scene box)",
+        description="Print a summary of a survey: number of pings and samples, signal band, "
+        "sensor extent and scene box. Reads only metadata and geometry, so it is fast on "
+        "large files. Accepts any format `shsas convert` reads.")
+    p.add_argument("file", help="survey file (canonical .h5, AirSAS folder/.zip/.pkl, SVSS .hdf5)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..importers import load_survey
+    from ..io import summarize
+
+    survey = load_survey(args.file, load_samples=False)
+    s = summarize(survey)
+    if args.json:
+        print(json.dumps(s, indent=2))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"survey: {args.file}", show_header=False)
+    for k, v in s.items():
+        table.add_row(k, json.dumps(v) if isinstance(v, dict | list) else str(v))
+    Console().print(table)
+    return 0

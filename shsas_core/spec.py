@@ -1,0 +1,42 @@
+"""The job specification shared by the CLI, the HTTP API and the worker.
+
+A reconstruction is fully described by its spec plus its input survey. Components own their
+own config models (``DeconvConfig``, ``BackprojectionConfig``, ``FieldConfig``, ``TrainConfig``,
+``ExtractConfig``); this module holds the user-facing top-level spec with validated limits.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+Method = Literal["backprojection", "reed", "shsas"]
+METHODS: tuple[str, ...] = ("backprojection", "reed", "shsas")
+
+
+class ReconstructionSpec(BaseModel):
+    """What to run on a survey. Defaults run on a 2-core CPU in minutes."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    methods: list[Method] = Field(default_factory=lambda: ["backprojection", "reed", "shsas"],
+                                  min_length=1, max_length=3)
+    sh_degree: int = Field(3, ge=0, le=3, description="SH degree L for method 'shsas' (reed is L=0)")
+    iters: int = Field(1500, ge=1, le=200_000, description="training iterations per neural method")
+    grid: int = Field(64, ge=8, le=512, description="voxels along the longest scene-box axis")
+    device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    deconvolution: Literal["wiener", "neural", "none"] = "wiener"
+    threshold: float | None = Field(None, gt=0, lt=1, description="normalised iso level; None = documented rule")
+    num_bins: int = Field(64, ge=1, le=4096, description="range bins rendered per ping per iteration")
+    num_rays: int = Field(1024, ge=1, le=65536, description="rays per ping per iteration")
+    pings_per_batch: int = Field(1, ge=1, le=64)
+    holdout_fraction: float = Field(0.0, ge=0, lt=0.9, description="pings held out for novel-view errors")
+
+    @field_validator("methods")
+    @classmethod
+    def _unique(cls, v: list[str]) -> list[str]:
+        if len(set(v)) != len(v):
+            raise ValueError(f"methods must not repeat: {v}")
+        return v

@@ -1,0 +1,317 @@
+"""The in-memory survey: N pings of bistatic time series plus the metadata needed to image them.
+
+Units throughout: metres, seconds, Hz, scene frame with z up. See docs/formats.md for the file
+layout and docs/architecture.md for where the survey flows next.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Literal
+
+import numpy as np
+import pydantic
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from .errors import SurveyValidationError
+from .pulse import lfm_pulse
+
+SignalKind = Literal["real", "analytic", "baseband"]
+
+#: Hard limits on sizes; they guard memory before anything is read (see io.read_survey).
+MAX_PINGS = 5_000_000
+MAX_SAMPLES_PER_PING = 1_000_000
+MAX_TOTAL_SAMPLES = 4_000_000_000
+MAX_PULSE_SAMPLES = 1_000_000
+MAX_MESH_ELEMENTS = 20_000_000
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class PulseParams(_Strict):
+    """LFM pulse parameters (the samples themselves live in ``Survey.pulse``)."""
+
+    f_start: float = Field(20e3 - 10e3, gt=0, description="start frequency, Hz")
+    f_stop: float = Field(20e3 + 10e3, gt=0, description="stop frequency, Hz")
+    duration: float = Field(1e-3, gt=0, le=1.0, description="pulse length, s")
+    window: Literal["tukey", "hann", "taylor", "rect"] = "tukey"
+    window_param: float = Field(0.1, ge=0, description="tukey ratio or taylor sidelobe level (dB)")
+
+    @property
+    def f_center(self) -> float:
+        return 0.5 * (self.f_start + self.f_stop)
+
+    @property
+    def bandwidth(self) -> float:
+        return abs(self.f_stop - self.f_start)
+
+    @property
+    def f_max(self) -> float:
+        return max(self.f_start, self.f_stop)
+
+
+class SceneBox(_Strict):
+    """Axis-aligned box that holds the scene, metres."""
+
+    min: tuple[float, float, float] = (-0.125, -0.125, 0.0)
+    max: tuple[float, float, float] = (0.125, 0.125, 0.2)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> SceneBox:
+        lo, hi = np.asarray(self.min), np.asarray(self.max)
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            raise ValueError("corners must be finite")
+        if np.any(hi <= lo):
+            raise ValueError(f"max {self.max} must exceed min {self.min} on every axis")
+        return self
+
+    @property
+    def size(self) -> np.ndarray:
+        return np.asarray(self.max) - np.asarray(self.min)
+
+    @property
+    def center(self) -> np.ndarray:
+        return 0.5 * (np.asarray(self.max) + np.asarray(self.min))
+
+
+class SurveyMeta(_Strict):
+    """Per-survey scalar metadata, validated by pydantic."""
+
+    fs: float = Field(100e3, gt=0, le=100e6, description="sample rate, Hz")
+    sound_speed: float = Field(343.0, ge=300, le=1600, description="sound speed, m/s")
+    pulse: PulseParams = PulseParams()
+    signal_kind: SignalKind = Field("real", description="real passband, analytic passband or complex baseband")
+    carrier_hz: float | None = Field(None, gt=0, description="carrier removed by basebanding (baseband only)")
+    tx_beamwidth_deg: float | None = Field(None, gt=0, le=360, description="full TX cone angle, degrees")
+    rx_beamwidth_deg: float | None = Field(None, gt=0, le=360, description="full RX cone angle, degrees")
+    platform: str = Field("unknown", max_length=64)
+    scene_box: SceneBox = SceneBox()
+    attrs: dict[str, str | float | int | bool] = Field(default_factory=dict, description="provenance")
+
+    @model_validator(mode="after")
+    def _sampling(self) -> SurveyMeta:
+        if self.signal_kind == "baseband":
+            if self.carrier_hz is None:
+                raise ValueError("carrier_hz is required when signal_kind is 'baseband'")
+            if self.fs <= self.pulse.bandwidth:
+                raise ValueError(
+                    f"fs={self.fs:g} Hz is not above the pulse bandwidth {self.pulse.bandwidth:g} Hz"
+                )
+        elif self.fs <= 2 * self.pulse.f_max:
+            raise ValueError(
+                f"fs={self.fs:g} Hz is not above twice the top chirp frequency "
+                f"({2 * self.pulse.f_max:g} Hz); raise fs or lower pulse.f_stop"
+            )
+        return self
+
+
+def parse_meta(data: dict[str, Any] | str) -> SurveyMeta:
+    """Validate metadata from a dict or JSON string; errors name the field ("meta.fs: ...")."""
+    try:
+        if isinstance(data, str):
+            return SurveyMeta.model_validate_json(data)
+        return SurveyMeta.model_validate(data)
+    except pydantic.ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"] if p != "__root__")
+        field = "meta" + (f".{loc}" if loc else "")
+        msg = err["msg"].removeprefix("Value error, ")
+        raise SurveyValidationError(field, f"{msg} (got {err.get('input')!r})"[:400]) from None
+
+
+@dataclasses.dataclass
+class Survey:
+    """A bistatic SAS survey.
+
+    Attributes:
+        tx: (N, 3) float64 transmitter positions, m.
+        rx: (N, 3) float64 receiver positions, m.
+        samples: (N, T) float32 (real) or complex64 (analytic / baseband) time series, or None
+            when only the header was read (see ``io.read_survey(load_samples=False)``).
+        t0: (N,) float64 time of each ping's first sample after transmit, s.
+        meta: scalar metadata (fs, sound speed, pulse parameters, scene box, ...).
+        pulse: (P,) float64 (or complex128) transmitted pulse at ``meta.fs``.
+        tx_dir, rx_dir: optional (N, 3) unit beam pointing vectors.
+        gt_vertices, gt_faces: optional ground-truth mesh, (V, 3) float64 m and (F, 3) int64.
+        extras: named per-ping arrays kept with the survey, e.g. ``"deconvolved"`` (N, T)
+            complex64 pulse-deconvolved signal, ``"clean"`` noise-free simulation.
+    """
+
+    tx: np.ndarray
+    rx: np.ndarray
+    samples: np.ndarray | None
+    t0: np.ndarray
+    meta: SurveyMeta
+    pulse: np.ndarray
+    tx_dir: np.ndarray | None = None
+    rx_dir: np.ndarray | None = None
+    gt_vertices: np.ndarray | None = None
+    gt_faces: np.ndarray | None = None
+    extras: dict[str, np.ndarray] = dataclasses.field(default_factory=dict)
+    #: (N, T) shape even when samples were not loaded.
+    shape: tuple[int, int] = (0, 0)
+
+    def __post_init__(self) -> None:
+        self.tx = np.asarray(self.tx, dtype=np.float64)
+        self.rx = np.asarray(self.rx, dtype=np.float64)
+        self.t0 = np.asarray(self.t0, dtype=np.float64)
+        self.pulse = np.asarray(self.pulse)
+        if self.samples is not None:
+            self.samples = np.asarray(self.samples)
+            if self.samples.dtype == np.float64:
+                self.samples = self.samples.astype(np.float32)
+            elif self.samples.dtype == np.complex128:
+                self.samples = self.samples.astype(np.complex64)
+            if self.samples.ndim == 2:
+                self.shape = (int(self.samples.shape[0]), int(self.samples.shape[1]))
+        for name in ("tx_dir", "rx_dir", "gt_vertices"):
+            v = getattr(self, name)
+            if v is not None:
+                setattr(self, name, np.asarray(v, dtype=np.float64))
+        if self.gt_faces is not None:
+            self.gt_faces = np.asarray(self.gt_faces, dtype=np.int64)
+        self.validate()
+
+    # -- convenience -------------------------------------------------------------------------
+    @property
+    def num_pings(self) -> int:
+        return self.shape[0]
+
+    @property
+    def num_samples(self) -> int:
+        return self.shape[1]
+
+    @property
+    def has_ground_truth(self) -> bool:
+        return self.gt_vertices is not None and self.gt_faces is not None
+
+    def times(self, ping: int | None = None) -> np.ndarray:
+        """Sample times after transmit, s: (T,) for one ping or (N, T) for all."""
+        k = np.arange(self.num_samples) / self.meta.fs
+        if ping is not None:
+            return self.t0[ping] + k
+        return self.t0[:, None] + k[None, :]
+
+    def subset(self, index: np.ndarray | slice) -> Survey:
+        """A new survey with only the selected pings (extras with a leading N axis follow)."""
+        n = self.num_pings
+
+        def pick(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[index]
+
+        extras = {k: v[index] for k, v in self.extras.items() if v.ndim >= 1 and v.shape[0] == n}
+        tx = self.tx[index]
+        return dataclasses.replace(
+            self, tx=tx, rx=self.rx[index], samples=pick(self.samples),
+            t0=self.t0[index], tx_dir=pick(self.tx_dir), rx_dir=pick(self.rx_dir), extras=extras,
+            shape=(len(tx), self.num_samples),
+        )
+
+    def ground_truth_mesh(self):
+        """The ground truth as a ``trimesh.Trimesh`` (None when absent)."""
+        if not self.has_ground_truth:
+            return None
+        import trimesh
+
+        return trimesh.Trimesh(self.gt_vertices, self.gt_faces, process=False)
+
+    # -- validation --------------------------------------------------------------------------
+    def validate(self) -> None:
+        """Check shapes, finiteness and physical plausibility; raise SurveyValidationError."""
+        n, t = self.shape
+        if self.samples is not None:
+            if self.samples.ndim != 2:
+                raise SurveyValidationError(
+                    "pings/samples", f"must be 2-D (pings, samples), got shape {self.samples.shape}")
+            if not (np.issubdtype(self.samples.dtype, np.floating) or np.iscomplexobj(self.samples)):
+                raise SurveyValidationError("pings/samples", f"must be float or complex, got {self.samples.dtype}")
+        check_sizes(n, t, int(self.pulse.size))
+        for name, arr in (("pings/tx", self.tx), ("pings/rx", self.rx)):
+            if arr.shape != (n, 3):
+                raise SurveyValidationError(name, f"shape {arr.shape} does not match (pings={n}, 3)")
+            if not np.all(np.isfinite(arr)):
+                bad = int(np.argwhere(~np.isfinite(arr))[0, 0])
+                raise SurveyValidationError(name, f"non-finite position at ping {bad}",
+                                            "drop or repair pings with NaN/inf navigation")
+        if self.t0.shape != (n,):
+            raise SurveyValidationError("pings/t0", f"shape {self.t0.shape} does not match (pings={n},)")
+        if not np.all(np.isfinite(self.t0)):
+            raise SurveyValidationError("pings/t0", "contains NaN or inf")
+        if np.any(self.t0 < 0):
+            raise SurveyValidationError("pings/t0", f"negative start time {self.t0.min():g} s",
+                                        "t0 is seconds after transmit and must be >= 0")
+        if self.pulse.ndim != 1 or not np.all(np.isfinite(self.pulse)):
+            raise SurveyValidationError("pulse/samples", "must be a finite 1-D array")
+        if not np.any(self.pulse != 0):
+            raise SurveyValidationError("pulse/samples", "is all zeros")
+        for name in ("tx_dir", "rx_dir"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if v.shape != (n, 3) or not np.all(np.isfinite(v)):
+                raise SurveyValidationError(f"pings/{name}", f"must be finite with shape ({n}, 3), got {v.shape}")
+            if np.any(np.linalg.norm(v, axis=1) < 1e-9):
+                raise SurveyValidationError(f"pings/{name}", "contains a zero pointing vector")
+        if (self.gt_vertices is None) != (self.gt_faces is None):
+            raise SurveyValidationError("ground_truth", "needs both vertices and faces")
+        if self.gt_vertices is not None:
+            v, f = self.gt_vertices, self.gt_faces
+            if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
+                raise SurveyValidationError("ground_truth/vertices", f"must be finite (V, 3), got {v.shape}")
+            if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
+                raise SurveyValidationError("ground_truth/faces", "must be (F, 3) indices into vertices")
+        for k, a in self.extras.items():
+            if not isinstance(a, np.ndarray):
+                raise SurveyValidationError(f"extras/{k}", "must be a numpy array")
+        if self.samples is not None and not np.all(np.isfinite(self.samples)):
+            bad = int(np.argwhere(~np.isfinite(self.samples))[0, 0])
+            raise SurveyValidationError("pings/samples", f"non-finite value in ping {bad}")
+        self._check_scene_in_view()
+
+    def _check_scene_in_view(self) -> None:
+        """At least one ping's recorded window must reach the scene box."""
+        box = self.meta.scene_box
+        lo, hi = np.asarray(box.min), np.asarray(box.max)
+        c, fs = self.meta.sound_speed, self.meta.fs
+        # two-way path bounds from each sensor to the box: closest point and farthest corner
+        def near(p: np.ndarray) -> np.ndarray:
+            return np.linalg.norm(p - np.clip(p, lo, hi), axis=1)
+
+        def far(p: np.ndarray) -> np.ndarray:
+            return np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=1)
+
+        r_min = near(self.tx) + near(self.rx)
+        r_max = far(self.tx) + far(self.rx)
+        w_start = c * self.t0
+        w_end = c * (self.t0 + max(self.num_samples - 1, 0) / fs)
+        if not np.any((r_max >= w_start) & (r_min <= w_end)):
+            raise SurveyValidationError(
+                "meta.scene_box",
+                f"no ping's recorded range window [{w_start.min():.3f}, {w_end.max():.3f}] m reaches "
+                f"the scene box (two-way paths {r_min.min():.3f}..{r_max.max():.3f} m)",
+                "check scene_box, t0 and sensor positions (units are metres and seconds)",
+            )
+
+
+def check_sizes(n: int, t: int, p: int) -> None:
+    """Size limits checked from declared shapes, before any data is read."""
+    if n <= 0:
+        raise SurveyValidationError("pings/samples", "survey has no pings", "a survey needs at least one ping")
+    if t <= 0:
+        raise SurveyValidationError("pings/samples", "pings have no samples", "each ping needs at least one sample")
+    if n > MAX_PINGS:
+        raise SurveyValidationError("pings/samples", f"{n} pings exceeds the limit of {MAX_PINGS}")
+    if t > MAX_SAMPLES_PER_PING:
+        raise SurveyValidationError("pings/samples", f"{t} samples per ping exceeds the limit of {MAX_SAMPLES_PER_PING}")
+    if n * t > MAX_TOTAL_SAMPLES:
+        raise SurveyValidationError("pings/samples", f"{n}x{t} samples exceeds the limit of {MAX_TOTAL_SAMPLES}")
+    if p <= 0 or p > MAX_PULSE_SAMPLES:
+        raise SurveyValidationError("pulse/samples", f"pulse has {p} samples (allowed 1..{MAX_PULSE_SAMPLES})")
+
+
+def default_pulse(meta: SurveyMeta) -> np.ndarray:
+    """Sample the LFM pulse described by ``meta.pulse`` at ``meta.fs``."""
+    p = meta.pulse
+    return lfm_pulse(p.f_start, p.f_stop, p.duration, meta.fs, p.window, p.window_param)
