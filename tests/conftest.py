@@ -53,3 +53,26 @@ def make_survey(n: int = 8, t: int = 512, complex_: bool = False, seed: int = 0,
 @pytest.fixture
 def tiny_survey() -> Survey:
     return make_survey()
+
+
+def shared_dir() -> Path | None:
+    """The `shared/` folder beside the checkout (paper, meshes), or $SHSAS_SHARED; None if absent."""
+    import os
+    from pathlib import Path
+
+    env = os.environ.get("SHSAS_SHARED")
+    cands = [Path(env)] if env else []
+    root = Path(__file__).resolve().parents[1]
+    cands += [root.parent / "shared", root / "shared"]
+    for c in cands:
+        if (c / "data" / "meshes").is_dir():
+            return c
+    return None
+
+
+@pytest.fixture
+def shared() -> Path:
+    d = shared_dir()
+    if d is None:
+        pytest.skip("../shared is not beside the checkout")
+    return d
