@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -57,9 +60,6 @@ def tiny_survey() -> Survey:
 
 def shared_dir() -> Path | None:
     """The `shared/` folder beside the checkout (paper, meshes), or $SHSAS_SHARED; None if absent."""
-    import os
-    from pathlib import Path
-
     env = os.environ.get("SHSAS_SHARED")
     cands = [Path(env)] if env else []
     root = Path(__file__).resolve().parents[1]
