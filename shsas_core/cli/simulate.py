@@ -76,6 +76,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
+    def one_line_error(message: str) -> None:
+        # argparse would print the whole usage block first; one line says it all here
+        p.exit(2, f"shsas simulate: error: {message} (see shsas simulate --help)\n")
+
+    p.error = one_line_error  # type: ignore[method-assign]
+
 
 def build_config(args: argparse.Namespace):
     """SimulationConfig from the parsed options; invalid values raise ShsasError."""

@@ -53,3 +53,14 @@ def test_bad_options_one_line_exit_2(tmp_path, capsys, argv, needle):
     assert rc == 2
     assert len(err.splitlines()) == 1 and needle in err
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.parametrize("argv", [["--shape", "cube", "--heights", "many"],
+                                  ["--shape", "cube", "--mesh", "a.obj"],
+                                  ["--shape", "cube", "--trajectory", "spiral"]])
+def test_argparse_errors_are_one_line(tmp_path, capsys, argv):
+    with pytest.raises(SystemExit) as exc:
+        main(["simulate", *argv, "--out", str(tmp_path / "x.h5")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("shsas simulate: error:")
