@@ -54,6 +54,7 @@ __all__ = [
     "ScatteringConfig",
     "SimulationConfig",
     "TrajectoryConfig",
+    "inband_power",
     "measured_snr_db",
     "record_window",
     "simulate",
