@@ -215,7 +215,11 @@ class _Scene:
         self.sc, self.weight, self.phase, self.cfg, self.occ = sc, weight, phase, cfg, occ
         x = sc.points
         self.xx = np.einsum("ij,ij->i", x, x)
-        self.nx = None if sc.normals is None else np.einsum("ij,ij->i", sc.normals, x)
+        self.xt = np.ascontiguousarray(x.T)
+        self.nx = self.nt = None
+        if sc.normals is not None:
+            self.nx = np.einsum("ij,ij->i", sc.normals, x)
+            self.nt = np.ascontiguousarray(sc.normals.T)
         self.start = self.start_back = None
         if occ is not None:
             # shadow rays leave from just above the surface so they do not hit their own face
@@ -227,9 +231,13 @@ class _Scene:
                     self.start_back = occ.to_frame(x - cfg.ray_offset * sc.normals)
 
 
-def _norm(v: np.ndarray) -> np.ndarray:
-    """Row norms of (K, 3) vectors (einsum: cheaper than linalg.norm here)."""
-    return np.sqrt(np.einsum("ij,ij->i", v, v))
+def _pair_dot(p: np.ndarray, vt: np.ndarray) -> np.ndarray:
+    """(B, M) dot products of sensors p (B, 3) with vectors vt (3, M), as three outer
+    products: a k = 3 matrix product is slow in BLAS and fights over threads."""
+    out = np.multiply.outer(p[:, 0], vt[0])
+    out += np.multiply.outer(p[:, 1], vt[1])
+    out += np.multiply.outer(p[:, 2], vt[2])
+    return out
 
 
 def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
@@ -241,9 +249,9 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
     flip = None
     if nrm is not None:
         # n·(o - x) for every pair, (B, M); its sign says whether the point faces the sensor
-        ft = tx @ nrm.T
+        ft = _pair_dot(tx, scene.nt)
         ft -= scene.nx
-        fr = rx @ nrm.T
+        fr = _pair_dot(rx, scene.nt)
         fr -= scene.nx
         if s.two_sided:  # face the side the TX is on
             flip = ft < 0
@@ -254,7 +262,8 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
         k = np.arange(b * m)
     if occ is not None and len(k):
         # TX leg first; only pairs that see the TX need the RX ray
-        pi, mi = np.divmod(k, m)
+        pi = k // m
+        mi = k - pi * m
         if flip is None:
             start = scene.start[mi]
         else:
@@ -264,10 +273,13 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
         k, pi, start = k[free], pi[free], start[free]
         free = ~occ.blocked(start, occ.to_frame(rx)[pi])
         k = k[free]
-    pi, mi = np.divmod(k, m)
-    xm = x[mi]
-    r_t = _norm(tx[pi] - xm)
-    r_r = _norm(rx[pi] - xm)
+    pi = k // m
+    mi = k - pi * m
+    # |o - x|² = |o|² + |x|² - 2 o·x; in float64 the cancellation costs ~1e-16 m at these ranges
+    r_t = np.einsum("ij,ij->i", tx, tx)[pi] + scene.xx[mi] - 2.0 * _pair_dot(tx, scene.xt).ravel()[k]
+    r_r = np.einsum("ij,ij->i", rx, rx)[pi] + scene.xx[mi] - 2.0 * _pair_dot(rx, scene.xt).ravel()[k]
+    r_t = np.sqrt(np.maximum(r_t, 0.0, out=r_t), out=r_t)
+    r_r = np.sqrt(np.maximum(r_r, 0.0, out=r_r), out=r_r)
     if nrm is None:
         a = np.ones(len(k))
     else:
@@ -283,6 +295,7 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
             a = np.ones(len(k))
         if s.specular_weight > 0:
             # Blinn-Phong lobe around the bistatic half vector h = unit(ω_T + ω_R)
+            xm = x[mi]
             h = (tx[pi] - xm) / r_t[:, None] + (rx[pi] - xm) / r_r[:, None]
             n = nrm[mi] if flip is None else nrm[mi] * np.where(flip.ravel()[k], -1.0, 1.0)[:, None]
             cos_h = np.einsum("ij,ij->i", n, h) / np.maximum(np.linalg.norm(h, axis=1), 1e-12)
