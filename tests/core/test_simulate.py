@@ -115,6 +115,29 @@ def test_spreading_loss_is_one_over_both_ranges():
     np.testing.assert_allclose(e_on / e_off, 1 / r, rtol=2e-3)
 
 
+def test_beam_cones_limit_the_footprint():
+    """A point echoes only on pings whose TX and RX cones (around the broadside pointing of a
+    linear pass) both contain it; checked against the angles computed here."""
+    x = np.array([[0.0, 0.0, 0.05]])
+    traj = TrajectoryConfig(kind="linear", heights=1, height_min=0.3, track_pings=41,
+                            track_length=1.2)
+    scat = ScatteringConfig(tx_beamwidth_deg=25.0, rx_beamwidth_deg=50.0)
+    box = SceneBox(min=(-0.1, -0.1, 0.0), max=(0.1, 0.1, 0.1))
+    s = simulate(None, SimulationConfig(trajectory=traj, scattering=scat, snr_db=None,
+                                        scene_box=box), scatterers=Scatterers(points=x))
+    assert s.meta.tx_beamwidth_deg == 25.0 and s.meta.rx_beamwidth_deg == 50.0
+    np.testing.assert_allclose(s.tx_dir[:, 0], 0.0)  # broadside: no along-track component
+
+    def angle(p, d):
+        v = x - p
+        return np.degrees(np.arccos(np.sum(v * d, axis=1) / np.linalg.norm(v, axis=1)))
+
+    inside = (angle(s.tx, s.tx_dir) <= 12.5) & (angle(s.rx, s.rx_dir) <= 25.0)
+    energy = np.sum(s.samples.astype(np.float64) ** 2, axis=1)
+    assert 3 <= inside.sum() < len(inside) - 10
+    np.testing.assert_array_equal(energy > 0, inside)
+
+
 def plate(size=0.04) -> trimesh.Trimesh:
     """Square plate in the z = 0 plane, normal +z."""
     h = size / 2
