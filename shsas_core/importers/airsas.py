@@ -193,7 +193,7 @@ def parse_waveform_params(text: str, row: int) -> PulseParams:
 
 
 def read_waveform_column(path: Path, column: int) -> np.ndarray:
-    """Column ``column`` of ``Waveforms.csv`` with trailing empty cells and zeros removed, (P,)."""
+    """Column ``column`` of ``Waveforms.csv`` (empty cells of shorter columns skipped), (P,)."""
     vals: list[float] = []
     for i, row in enumerate(_rows(path), start=1):
         if column >= len(row) or row[column] == "":
@@ -206,10 +206,9 @@ def read_waveform_column(path: Path, column: int) -> np.ndarray:
             raise SurveyValidationError(f"Waveforms.csv: column {column}", f"row {i} has {row[column]!r}, not a number")
         vals.append(float(row[column]))
     w = np.asarray(vals, dtype=np.float64)
-    nz = np.flatnonzero(w)
-    if nz.size == 0:
+    if not np.any(w != 0):
         raise SurveyValidationError(f"Waveforms.csv: column {column}", "has no non-zero samples")
-    return w[: nz[-1] + 1]
+    return w
 
 
 def read_flight(path: Path) -> np.ndarray:

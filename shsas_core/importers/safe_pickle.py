@@ -114,6 +114,7 @@ def _allowed() -> dict[tuple[str, str], Any]:
         out[(f"{core}.numeric", "_frombuffer")] = _frombuffer
     out[("_codecs", "encode")] = _encode
     out[("copyreg", "_reconstructor")] = _reconstructor
+    out[("copy_reg", "_reconstructor")] = _reconstructor  # protocol < 3 spelling
     for name, cls in RECORD_TYPES.items():
         out[("data_schemas", name)] = cls
     return out

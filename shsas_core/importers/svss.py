@@ -15,7 +15,9 @@ Accepted layout (docs/formats.md, "SVSS"): a track folder holding, for image num
 The path given may be that folder (with one image, or pick ``image_number``), the unpack file
 or the motion-solution file. TX firings cycle through the TX elements (firing p uses element
 p mod T). Element positions are placed with the reference code's attitude matrix ``A(roll,
-pitch, yaw)``: ``world = A·body + Position``; both beams point along ``A·(0, 0, −1)``. The SVSS
+pitch, yaw)``: ``world = A·body + Position``; both beams point along ``A·(0, 0, 1)``, i.e. down
+toward the lake bed, where the reference code puts its scene (0.5 to 2 m deeper than the
+array). The SVSS
 frame (x along track, y cross track, z depth down) is turned into the shsas frame (z up) by a
 180° rotation about x: ``(x, y, z) -> (x, −y, −z)``.
 """
@@ -270,7 +272,8 @@ def read_svss(
     tx_el = tx_body[np.arange(n_ping) % n_tx]  # (P, 3)
     tx_p = np.einsum("pij,pj->pi", mats, tx_el) + pos
     rx_p = np.einsum("pij,rj->pri", mats, rx_body) + pos[:, None, :]  # (P, R, 3)
-    point = np.einsum("pij,j->pi", mats, np.array([0.0, 0.0, -1.0]))
+    # the SVSS looks down: +z in its depth-positive frame (-z after the flip to z up)
+    point = np.einsum("pij,j->pi", mats, np.array([0.0, 0.0, 1.0]))
     tx = np.repeat(tx_p, n_rx, axis=0) @ FLIP.T
     rx = rx_p.reshape(-1, 3) @ FLIP.T
     dirs = np.repeat(point, n_rx, axis=0) @ FLIP.T
