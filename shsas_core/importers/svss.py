@@ -35,7 +35,6 @@ import numpy as np
 
 from ..errors import SurveyValidationError, UnsafeFileError
 from ..io import check_hdf5_safety
-from ..pulse import lfm_pulse
 from ..survey import PulseParams, SceneBox, Survey, check_sizes, parse_meta
 
 FS_HZ = 125e3
@@ -188,6 +187,8 @@ def _temperature_from_table(folder: Path) -> float | None:
 def baseband_pulse(fs: float = FS_HZ, carrier: float = CARRIER_HZ) -> np.ndarray:
     """The analytic SVSS pulse, basebanded: ``hilbert(p)(t)·exp(−2πi·carrier·t)``, (P,) complex."""
     from scipy.signal import hilbert
+
+    from ..pulse import lfm_pulse
 
     p = lfm_pulse(PULSE.f_start, PULSE.f_stop, PULSE.duration, fs, PULSE.window, PULSE.window_param)
     t = np.arange(p.size) / fs
