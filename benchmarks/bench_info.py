@@ -78,7 +78,7 @@ def main() -> None:
         subprocess.run(cmd, check=True, capture_output=True, env=env)
 
     def cli_table() -> None:
-        subprocess.run(cmd[:-2] + [str(path)], check=True, capture_output=True, env=env)
+        subprocess.run([*cmd[:-2], str(path)], check=True, capture_output=True, env=env)
 
     def noop() -> None:
         subprocess.run([sys.executable, "-c", "pass"], check=True, capture_output=True)
