@@ -13,7 +13,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..errors import SurveyValidationError, UnsupportedFormatError
+from ..errors import ShsasError, SurveyValidationError, UnsupportedFormatError
 from ..survey import Survey
 
 FORMATS = ("shsas", "airsas-csv", "airsas-pickle", "svss")
@@ -76,6 +76,18 @@ def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: boo
         options: importer keywords, e.g. ``background=``, ``waveform=`` (AirSAS CSV),
             ``image_number=``, ``temperature_f=`` (SVSS), ``scene_box=`` (all importers).
     """
+    try:
+        return _load(path, fmt, load_samples, options)
+    except ShsasError:
+        raise
+    except (OSError, RuntimeError, KeyError, ValueError, UnicodeError, EOFError) as exc:
+        # safety net: a library error on a malformed file becomes a one-line, named problem
+        raise SurveyValidationError(
+            "file", f"'{Path(path).name}' could not be read ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0][:160] if str(exc) else 'no detail'})") from None
+
+
+def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[str, Any]) -> Survey:
     fmt = detect_format(path) if fmt == "auto" else fmt
     if fmt == "shsas":
         from ..io import read_survey

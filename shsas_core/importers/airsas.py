@@ -369,6 +369,9 @@ def _build(scan: _Scan, bg_folder: Path | None, waveform: int | None, mic: int, 
     pparams = parse_waveform_params(wf_rows[wf][0], wf + 1)
     temps = scan.temp_c[sel]
     c = 331.4 + 0.6 * float(np.mean(temps))
+    if not 300.0 <= c <= 1600.0:
+        raise SurveyValidationError("Coordinates.csv: temperature", f"mean {np.mean(temps):g} C gives a sound "
+                                    f"speed of {c:g} m/s, outside 300..1600", "temperatures are degrees Celsius")
     meta = _meta(fs, c, pparams, scene_box, {
         "source": "airsas-csv", "file": source, "waveform": wf, "mic": mic,
         "group_delay_samples": gd, "temperature_mean_c": float(np.mean(temps)),
