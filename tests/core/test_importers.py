@@ -255,3 +255,56 @@ def test_svss_missing_motion_file_named(tmp_path):
     (folder / f"motion solution - LF - down - {tr.number}.hdf5").unlink()
     with pytest.raises(SurveyValidationError, match="motion solution - LF - down - 7.hdf5"):
         read_svss(folder)
+
+
+# --------------------------------------------------------------------------- zip safety
+
+
+def test_safe_zip_size_cap_counts_real_bytes(tmp_path):
+    from shsas_core.importers.safe_zip import safe_extract
+
+    z = tmp_path / "big.zip"
+    with zipfile.ZipFile(z, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("scan/Flight-000001.csv", "0.0\n" * 10_000)  # 40 kB, compresses to ~100 B
+    dest = tmp_path / "out"
+    dest.mkdir()
+    with pytest.raises(UnsafeFileError, match="zip bomb"):
+        safe_extract(z, dest, max_bytes=1_000)
+    assert safe_extract(z, dest, max_bytes=100_000) == dest.resolve()
+    assert (dest / "scan" / "Flight-000001.csv").stat().st_size == 40_000
+
+
+@pytest.mark.parametrize("name", ["/etc/evil.csv", "a/../../evil.csv", "C:/evil.csv", "..\\evil.csv"])
+def test_safe_zip_refuses_escaping_names(tmp_path, name):
+    from shsas_core.importers.safe_zip import safe_extract
+
+    z = tmp_path / "t.zip"
+    with zipfile.ZipFile(z, "w") as zf:
+        zf.writestr("ok.csv", "1\n")
+        zf.writestr(name, "x")
+    dest = tmp_path / "out"
+    dest.mkdir()
+    with pytest.raises(UnsafeFileError, match="path traversal"):
+        safe_extract(z, dest)
+    assert list(dest.iterdir()) == []  # names are checked before anything is written
+
+
+def test_safe_zip_refuses_symlinks(tmp_path):
+    from shsas_core.importers.safe_zip import safe_extract
+
+    z = tmp_path / "t.zip"
+    info = zipfile.ZipInfo("scan/Coordinates.csv")
+    info.external_attr = (0o120777 << 16)  # S_IFLNK
+    with zipfile.ZipFile(z, "w") as zf:
+        zf.writestr(info, "/etc/passwd")
+    (tmp_path / "out").mkdir()
+    with pytest.raises(UnsafeFileError, match="symbolic link"):
+        safe_extract(z, tmp_path / "out")
+
+
+def test_background_at_other_positions_is_refused(tmp_path):
+    scan = AirSASScan()
+    folder = scan.write(tmp_path / "scan")
+    AirSASScan(angles=[0.0, 90.0, 180.0, 271.0]).write(folder / "background")
+    with pytest.raises(SurveyValidationError, match=r"background: .*ping 4 is at angle 271"):
+        read_airsas_csv(folder)
