@@ -287,7 +287,11 @@ class _Opened:
         if self.path.is_dir():
             return self.path
         self._tmp = tempfile.TemporaryDirectory(prefix="shsas-airsas-")
-        return safe_zip.safe_extract(self.path, self._tmp.name)
+        try:
+            return safe_zip.safe_extract(self.path, self._tmp.name)
+        except BaseException:
+            self._tmp.cleanup()  # __exit__ is not called when __enter__ raises
+            raise
 
     def __exit__(self, *exc: Any) -> None:
         if self._tmp is not None:

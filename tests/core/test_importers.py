@@ -308,3 +308,25 @@ def test_background_at_other_positions_is_refused(tmp_path):
     AirSASScan(angles=[0.0, 90.0, 180.0, 271.0]).write(folder / "background")
     with pytest.raises(SurveyValidationError, match=r"background: .*ping 4 is at angle 271"):
         read_airsas_csv(folder)
+
+
+def test_zip_temp_folder_removed_after_success_and_failure(tmp_path):
+    import tempfile
+    from pathlib import Path
+
+    def leftovers():
+        return set(Path(tempfile.gettempdir()).glob("shsas-airsas-*"))
+
+    before = leftovers()
+    folder = AirSASScan().write(tmp_path / "scan")
+    good = tmp_path / "good.zip"
+    with zipfile.ZipFile(good, "w") as zf:
+        for p in folder.iterdir():
+            zf.write(p, p.name)
+    assert load_survey(good).num_pings == 4
+    bad = tmp_path / "bad.zip"
+    with zipfile.ZipFile(bad, "w") as zf:
+        zf.writestr("../x.csv", "1")
+    with pytest.raises(UnsafeFileError):
+        load_survey(bad)
+    assert leftovers() == before
