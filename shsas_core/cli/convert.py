@@ -37,7 +37,16 @@ def run(args: argparse.Namespace) -> int:
         options["waveform"] = args.waveform
     if args.image_number is not None:
         options["image_number"] = args.image_number
-    survey = load_survey(args.input, fmt=args.format, **options)
+    import sys
+
+    from ..progress import TqdmProgress
+
+    # the bar goes to stderr; keep stderr to the one-line error when it is not a terminal
+    bar = TqdmProgress(disable=not sys.stderr.isatty())
+    try:
+        survey = load_survey(args.input, fmt=args.format, progress=bar, **options)
+    finally:
+        bar.close()
     out = write_survey(survey, args.output, compression=None if args.compression == "none" else args.compression)
     print(f"wrote {out} ({survey.num_pings} pings x {survey.num_samples} samples)")
     return 0

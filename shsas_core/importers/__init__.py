@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ShsasError, SurveyValidationError, UnsupportedFormatError
+from ..progress import ProgressFn
 from ..survey import Survey
 
 FORMATS = ("shsas", "airsas-csv", "airsas-pickle", "svss")
@@ -67,16 +68,21 @@ def detect_format(path: str | os.PathLike) -> str:
 
 
 def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: bool = True,
-                **options: Any) -> Survey:
+                progress: ProgressFn | None = None, **options: Any) -> Survey:
     """Load a survey of any supported format.
 
     Args:
         fmt: "auto" or one of :data:`FORMATS`.
         load_samples: False reads only metadata and geometry where the format allows.
+        progress: ``progress(fraction, stage, metrics)`` for importers that read many files
+            (AirSAS CSV); ignored by the others.
         options: importer keywords, e.g. ``background=``, ``waveform=`` (AirSAS CSV),
             ``image_number=``, ``temperature_f=`` (SVSS), ``scene_box=`` (all importers).
     """
     try:
+        fmt = detect_format(path) if fmt == "auto" else fmt
+        if progress is not None and fmt == "airsas-csv":
+            options = {**options, "progress": progress}
         return _load(path, fmt, load_samples, options)
     except ShsasError:
         raise
@@ -88,7 +94,6 @@ def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: boo
 
 
 def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[str, Any]) -> Survey:
-    fmt = detect_format(path) if fmt == "auto" else fmt
     if fmt == "shsas":
         from ..io import read_survey
 

@@ -330,3 +330,9 @@ def test_zip_temp_folder_removed_after_success_and_failure(tmp_path):
     with pytest.raises(UnsafeFileError):
         load_survey(bad)
     assert leftovers() == before
+
+
+def test_progress_reaches_one_for_csv_import(tmp_path):
+    calls = []
+    load_survey(AirSASScan().write(tmp_path / "scan"), progress=lambda f, st, m: calls.append((f, st)))
+    assert calls[-1] == (1.0, "import:airsas") and all(0 <= f <= 1 for f, _ in calls)
