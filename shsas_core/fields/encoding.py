@@ -177,7 +177,7 @@ class FusedLayout:
         # levels are ordered by resolution, so the dense ones form a prefix
         self.n_dense = sum(layout.dense)
         assert all(layout.dense[: self.n_dense]) and not any(layout.dense[self.n_dense :])
-        self.offsets = torch.tensor(layout.offsets, dtype=torch.int64, device=device)
+        self.offsets = torch.tensor(layout.offsets, dtype=torch.int32, device=device)
         # per-axis multipliers: dense strides (1, n+1, (n+1)^2) or the hash primes
         self.mult = torch.tensor(
             [[1, r + 1, (r + 1) ** 2] if d else list(PRIMES) for r, d in zip(n, layout.dense, strict=True)],
@@ -244,7 +244,7 @@ def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Te
         u: (P, 3) points, already clamped to [0, 1].
 
     Returns:
-        rows (P, Lv, 8) int64 (corner c = 4 cz + 2 cy + cx, level offsets included) and
+        rows (P, Lv, 8) int32 (corner c = 4 cz + 2 cy + cx, level offsets included) and
         frac (P, Lv, 3) in u's dtype (differentiable in u).
     """
     res = fl.res.to(u.dtype)
@@ -253,19 +253,107 @@ def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Te
     # ones. Multiplying per axis before combining keeps the temporaries at (P, Lv, 3, 2); only
     # the final (P, Lv, 8) index is materialised. Masking each hashed term with T - 1 before
     # the xor is exact because bitwise and distributes over xor.
+    # The per-axis terms are < 2^24 after masking, so the combination runs in int32 (half the
+    # memory traffic of int64; index_select and index_add accept int32 indices).
     corner = torch.arange(2, device=u.device)
-    axes = (i0[..., None] + corner) * fl.mult[None, :, :, None]  # (P, Lv, 3, 2)
+    axes = (i0[..., None] + corner) * fl.mult[None, :, :, None]  # (P, Lv, 3, 2) int64
     nd = fl.n_dense
     parts = []
     if nd > 0:
-        a = axes[:, :nd]
+        a = axes[:, :nd].to(torch.int32)
         parts.append(a[:, :, 2, :, None, None] + a[:, :, 1, None, :, None] + a[:, :, 0, None, None, :])
     if nd < axes.shape[1]:
-        a = axes[:, nd:] & fl.mask
+        a = (axes[:, nd:] & fl.mask).to(torch.int32)
         parts.append(a[:, :, 2, :, None, None] ^ a[:, :, 1, None, :, None] ^ a[:, :, 0, None, None, :])
     rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
     rows = rows.reshape(u.shape[0], fl.res.shape[0], 8) + fl.offsets[None, :, None]
     return rows, frac
+
+
+def _lerp_forward(
+    v: torch.Tensor, frac: torch.Tensor, res: torch.Tensor, with_jacobian: bool
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Trilinear interpolation of gathered corners by nested lerps, and its spatial Jacobian.
+
+    v: (P, Lv, 2z, 2y, 2x, F) corner values; frac: (P, Lv, 3); res: (Lv,).
+    Returns out (P, Lv, F) and jac (3, P, Lv, F) (d out / d u_a) or None.
+    """
+    fx = frac[:, :, 0, None, None, None]
+    fy = frac[:, :, 1, None, None]
+    fz = frac[:, :, 2, None]
+    dx = v[:, :, :, :, 1] - v[:, :, :, :, 0]  # (P, Lv, 2z, 2y, F)
+    a = v[:, :, :, :, 0] + fx * dx
+    dy = a[:, :, :, 1] - a[:, :, :, 0]  # (P, Lv, 2z, F)
+    b = a[:, :, :, 0] + fy * dy
+    dz = b[:, :, 1] - b[:, :, 0]  # (P, Lv, F)
+    out = b[:, :, 0] + fz * dz
+    if not with_jacobian:
+        return out, None
+    r = res[None, :, None]
+    cx = dx[:, :, :, 0] + fy * (dx[:, :, :, 1] - dx[:, :, :, 0])  # lerp_y of the x-differences
+    jx = (cx[:, :, 0] + fz * (cx[:, :, 1] - cx[:, :, 0])) * r
+    jy = (dy[:, :, 0] + fz * (dy[:, :, 1] - dy[:, :, 0])) * r
+    return out, torch.stack((jx, jy, dz * r), 0)
+
+
+def _lerp_adjoint(
+    g_out: torch.Tensor | None, g_jac: torch.Tensor | None, frac: torch.Tensor, res: torch.Tensor
+) -> torch.Tensor:
+    """Gradient w.r.t. the corner values v of :func:`_lerp_forward` (which is linear in v).
+
+    With per-axis weights W_a = (1 - f_a, f_a) and slopes S_a = res (-1, +1):
+    out = Σ Wz Wy Wx v, jac_x = Σ Wz Wy Sx v, jac_y = Σ Wz Sy Wx v, jac_z = Σ Sz Wy Wx v, so
+    dv = Wz ⊗ (Wy ⊗ (Wx g_out + Sx g_x) + Sy ⊗ Wx g_y) + Sz ⊗ Wy ⊗ Wx g_z.
+    Built from differentiable ops: the backward can itself be differentiated (double backward).
+    Returns (P, Lv, 2z, 2y, 2x, F).
+    """
+    sgn = torch.tensor([-1.0, 1.0], dtype=frac.dtype, device=frac.device)
+    w = torch.stack((1 - frac, frac), -1)  # (P, Lv, 3, 2)
+    wx, wy, wz = w[:, :, 0, :, None], w[:, :, 1, :, None], w[:, :, 2, :, None]  # (P, Lv, 2, 1)
+    sx = sy = sz = (res[:, None] * sgn)[None, :, :, None]  # (1, Lv, 2, 1), same on every axis
+    if g_out is None:
+        g_out = torch.zeros_like(g_jac[0])
+    gx = g_out[:, :, None] * wx  # (P, Lv, 2x, F)
+    if g_jac is not None:
+        gx = gx + g_jac[0][:, :, None] * sx
+    bb = wy[..., None, :] * gx[:, :, None]  # (P, Lv, 2y, 2x, F)
+    if g_jac is not None:
+        bb = bb + sy[..., None, :] * (g_jac[1][:, :, None] * wx)[:, :, None]
+    dv = wz[..., None, None, :] * bb[:, :, None]  # (P, Lv, 2z, 2y, 2x, F)
+    if g_jac is not None:
+        c = wy[..., None, :] * (g_jac[2][:, :, None] * wx)[:, :, None]
+        dv = dv + sz[..., None, None, :] * c[:, :, None]
+    return dv
+
+
+class _InterpTable(torch.autograd.Function):
+    """features (and Jacobian) from the table with a hand-written backward to the table.
+
+    Used when the points need no gradient (training: sample points come from geometry). Saves
+    only the int32 rows and the fractions; the backward is one adjoint pass plus one
+    ``index_add``, instead of autograd's many slice/select backward buffers.
+    """
+
+    @staticmethod
+    def forward(ctx, table, rows, frac, res, with_jacobian):
+        p, nlev = frac.shape[0], frac.shape[1]
+        v = _gather_impl(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, table.shape[1])
+        out, jac = _lerp_forward(v, frac, res, with_jacobian)
+        ctx.save_for_backward(rows, frac, res)
+        ctx.n_rows = table.shape[0]
+        ctx.with_jacobian = with_jacobian
+        if not with_jacobian:
+            jac = out.new_zeros(0)
+        return out, jac
+
+    @staticmethod
+    def backward(ctx, g_out, g_jac):
+        rows, frac, res = ctx.saved_tensors
+        if not ctx.with_jacobian:
+            g_jac = None
+        dv = _lerp_adjoint(g_out, g_jac, frac, res)
+        g_table = _ScatterRows.apply(dv.reshape(-1, dv.shape[-1]), rows.reshape(-1), ctx.n_rows)
+        return g_table, None, None, None, None
 
 
 def encode_fused(
@@ -274,7 +362,10 @@ def encode_fused(
     """Batched encoding: all levels and corners in one gather from the flat table.
 
     Interpolation is done as nested lerps (x, then y, then z) on the gathered corner values,
-    and the spatial Jacobian reuses the same differences, so it costs a few extra lerps.
+    and the spatial Jacobian reuses the same differences, so it costs a few extra lerps. When
+    ``u`` needs no gradient a custom autograd function with a hand-written (and itself
+    differentiable) backward to the table is used; otherwise plain autograd ops, differentiable
+    to any order in both the table and ``u``.
 
     Args:
         u: (P, 3) points in [0, 1]^3 (clamped here).
@@ -288,28 +379,20 @@ def encode_fused(
     """
     u = u.clamp(0.0, 1.0)
     p, feat = u.shape[0], table.shape[1]
-    rows, frac = fused_rows(u, fl)
-    nlev = rows.shape[1]
-    v = _GatherRows.apply(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, feat)  # [z, y, x]
-    frac = frac.to(table.dtype)
-    fx = frac[:, :, 0, None, None, None]
-    fy = frac[:, :, 1, None, None]
-    fz = frac[:, :, 2, None]
-    dx = v[:, :, :, :, 1] - v[:, :, :, :, 0]  # (P, Lv, 2z, 2y, F)
-    a = v[:, :, :, :, 0] + fx * dx
-    dy = a[:, :, :, 1] - a[:, :, :, 0]  # (P, Lv, 2z, F)
-    b = a[:, :, :, 0] + fy * dy
-    dz = b[:, :, 1] - b[:, :, 0]  # (P, Lv, F)
-    out = (b[:, :, 0] + fz * dz).reshape(p, nlev * feat)
-    if not with_jacobian:
-        return out, None
-    res = fl.res.to(table.dtype)[None, :, None]
-    cx = dx[:, :, :, 0] + fy * (dx[:, :, :, 1] - dx[:, :, :, 0])  # lerp_y of x-differences
-    jx = (cx[:, :, 0] + fz * (cx[:, :, 1] - cx[:, :, 0])) * res
-    jy = (dy[:, :, 0] + fz * (dy[:, :, 1] - dy[:, :, 0])) * res
-    jz = dz * res
-    jac = torch.stack((jx, jy, jz), 0).reshape(3, p, nlev * feat)
-    return out, jac
+    nlev = fl.res.shape[0]
+    res = fl.res.to(table.dtype)
+    if u.requires_grad and torch.is_grad_enabled():
+        rows, frac = fused_rows(u, fl)
+        v = _GatherRows.apply(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, feat)  # [z, y, x]
+        out, jac = _lerp_forward(v, frac.to(table.dtype), res, with_jacobian)
+    else:
+        with torch.no_grad():
+            rows, frac = fused_rows(u, fl)
+        out, jac = _InterpTable.apply(table, rows, frac.to(table.dtype), res, with_jacobian)
+        if not with_jacobian:
+            jac = None
+    out = out.reshape(p, nlev * feat)
+    return out, (jac.reshape(3, p, nlev * feat) if jac is not None else None)
 
 
 class HashEncoding(torch.nn.Module):

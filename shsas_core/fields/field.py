@@ -126,10 +126,12 @@ class SHField(torch.nn.Module):
             raise ShsasError(f"field: {name} must have shape (P, 3), got {tuple(x.shape)}")
 
     def _unit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """u = (x - min) / size and the inside-box mask (P,) as 0/1 in x's dtype."""
+        """u = (x - min) / size and the inside-box mask (P,) as 0/1, in the parameters' dtype
+        (points may come in float64; the network runs in its own dtype)."""
         u = (x - self.box_min.to(x.dtype)) / self.box_size.to(x.dtype)
-        inside = ((u >= 0) & (u <= 1)).all(dim=1).to(x.dtype)
-        return u, inside
+        dt = self.encoding.table.dtype
+        inside = ((u >= 0) & (u <= 1)).all(dim=1).to(dt)
+        return u.to(dt), inside
 
     def _mlp(self, h: torch.Tensor) -> torch.Tensor:
         for i, lin in enumerate(self.linears):
