@@ -1,4 +1,9 @@
-"""Benchmark the SH field: ms per forward + backward with normals (create_graph), fast vs eager.
+"""Benchmark the SH field: ms per forward + backward with normals (create_graph).
+
+Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fast``
+(fused batched encoding + forward-mode normals, ``FieldConfig(fast=True)``), ``compiled``
+(``fast`` plus ``FieldConfig(compile=True)``: encoding kernels through torch.compile; its
+``first ms`` includes the compile).
 
 One training-like step: ``out = field(x, dirs)`` (density, scattering, normals with
 ``create_graph=True``), a loss that uses all three, ``loss.backward()`` to the parameters.
@@ -7,7 +12,8 @@ Each configuration runs in its own subprocess so peak memory is per configuratio
 
     PYTHONPATH=. python benchmarks/bench_fields.py                   # CPU preset, both sizes
     PYTHONPATH=. python benchmarks/bench_fields.py --preset paper_gpu --device cuda
-    PYTHONPATH=. python benchmarks/bench_fields.py --points 65536 --repeats 5
+    PYTHONPATH=. python benchmarks/bench_fields.py --points 65536 --repeats 5 --modes fast compiled
+    OMP_NUM_THREADS=1 ...   # pin threads on a shared machine (oversubscribed OpenMP spins)
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from shsas_core.device import resolve_device
 from shsas_core.fields import FieldConfig, SHField, encoding_preset
 
 SIZES = (64 * 1024, 200 * 4800)
+MODES = ("eager", "fast", "compiled")
 
 
 def _rss_mb() -> float:
@@ -32,10 +39,12 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_one(points: int, fast: bool, preset: str, degree: int, device: str, repeats: int) -> dict:
+def run_one(points: int, mode: str, preset: str, degree: int, device: str, repeats: int) -> dict:
     dev = resolve_device(device)
     torch.manual_seed(0)
-    field = SHField(FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), fast=fast)).to(dev)
+    cfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), fast=mode != "eager",
+                      compile=mode == "compiled")
+    field = SHField(cfg).to(dev)
     box = field.cfg.scene_box
     lo = torch.tensor(box.min, dtype=torch.float32, device=dev)
     size = torch.tensor(box.size, dtype=torch.float32, device=dev)
@@ -70,7 +79,7 @@ def run_one(points: int, fast: bool, preset: str, degree: int, device: str, repe
     peak = torch.cuda.max_memory_allocated(dev) / 2**20 if dev.type == "cuda" else _rss_mb() - base_rss
     times.sort()
     return {
-        "points": points, "fast": fast, "preset": preset, "degree": degree, "device": str(dev),
+        "points": points, "mode": mode, "preset": preset, "degree": degree, "device": str(dev),
         "first_ms": first_ms, "min_ms": times[0], "median_ms": times[len(times) // 2], "peak_mb": peak,
         "threads": torch.get_num_threads(),
     }
@@ -83,33 +92,35 @@ def main() -> None:
     ap.add_argument("--degree", type=int, default=3)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--only", choices=["fast", "eager"], default=None)
+    ap.add_argument("--modes", nargs="*", choices=list(MODES), default=list(MODES))
     ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
-        res = run_one(args.points[0], args.only == "fast", args.preset, args.degree, args.device, args.repeats)
+        res = run_one(args.points[0], args.modes[0], args.preset, args.degree, args.device, args.repeats)
         print(json.dumps(res))
         return
-    modes = [args.only] if args.only else ["eager", "fast"]
+    modes = args.modes
     print(f"SHField forward+backward with normals (create_graph), L={args.degree}, preset={args.preset}, "
           f"device={resolve_device(args.device)}, torch {torch.__version__}")
-    print(f"{'points':>9} {'mode':>6} {'first ms':>10} {'min ms':>10} {'median ms':>10} {'peak MB':>9}")
+    print(f"threads: {torch.get_num_threads()}")
+    print(f"{'points':>9} {'mode':>8} {'first ms':>10} {'min ms':>10} {'median ms':>10} {'peak MB':>9}")
     rows = {}
     for p in args.points:
         for mode in modes:
-            cmd = [sys.executable, __file__, "--one", "--points", str(p), "--only", mode, "--preset", args.preset,
+            cmd = [sys.executable, __file__, "--one", "--points", str(p), "--modes", mode, "--preset", args.preset,
                    "--degree", str(args.degree), "--device", args.device, "--repeats", str(args.repeats)]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
-                print(f"{p:>9} {mode:>6} failed: {proc.stderr.strip().splitlines()[-1:]}")
+                print(f"{p:>9} {mode:>8} failed: {proc.stderr.strip().splitlines()[-1:]}")
                 continue
             r = json.loads(proc.stdout.strip().splitlines()[-1])
             rows[(p, mode)] = r
-            print(f"{p:>9} {mode:>6} {r['first_ms']:>10.1f} {r['min_ms']:>10.1f} {r['median_ms']:>10.1f} "
+            print(f"{p:>9} {mode:>8} {r['first_ms']:>10.1f} {r['min_ms']:>10.1f} {r['median_ms']:>10.1f} "
                   f"{r['peak_mb']:>9.0f}", flush=True)
-        if (p, "eager") in rows and (p, "fast") in rows:
-            sp = rows[(p, "eager")]["median_ms"] / rows[(p, "fast")]["median_ms"]
-            print(f"{p:>9} speedup (median eager / median fast): {sp:.2f}x")
+        for mode in ("fast", "compiled"):
+            if (p, "eager") in rows and (p, mode) in rows:
+                sp = rows[(p, "eager")]["median_ms"] / rows[(p, mode)]["median_ms"]
+                print(f"{p:>9} speedup eager/{mode} (median): {sp:.2f}x")
 
 
 if __name__ == "__main__":

@@ -247,7 +247,13 @@ def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Te
         rows (P, Lv, 8) int32 (corner c = 4 cz + 2 cy + cx, level offsets included) and
         frac (P, Lv, 3) in u's dtype (differentiable in u).
     """
-    res = fl.res.to(u.dtype)
+    return _rows_frac(u, fl.res.to(u.dtype), fl.mult, fl.offsets, fl.n_dense, fl.mask)
+
+
+def _rows_frac(
+    u: torch.Tensor, res: torch.Tensor, mult: torch.Tensor, offsets: torch.Tensor, n_dense: int, mask: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`fused_rows` on explicit tensors (traceable by torch.compile)."""
     i0, frac = _cell(u[:, None, :], res[None, :, None])  # (P, Lv, 3)
     # Row = combine over axes of (i0_a + c_a) * mult_a: a sum on dense levels, an xor on hashed
     # ones. Multiplying per axis before combining keeps the temporaries at (P, Lv, 3, 2); only
@@ -256,17 +262,16 @@ def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Te
     # The per-axis terms are < 2^24 after masking, so the combination runs in int32 (half the
     # memory traffic of int64; index_select and index_add accept int32 indices).
     corner = torch.arange(2, device=u.device)
-    axes = (i0[..., None] + corner) * fl.mult[None, :, :, None]  # (P, Lv, 3, 2) int64
-    nd = fl.n_dense
+    axes = (i0[..., None] + corner) * mult[None, :, :, None]  # (P, Lv, 3, 2) int64
     parts = []
-    if nd > 0:
-        a = axes[:, :nd].to(torch.int32)
+    if n_dense > 0:
+        a = axes[:, :n_dense].to(torch.int32)
         parts.append(a[:, :, 2, :, None, None] + a[:, :, 1, None, :, None] + a[:, :, 0, None, None, :])
-    if nd < axes.shape[1]:
-        a = (axes[:, nd:] & fl.mask).to(torch.int32)
+    if n_dense < axes.shape[1]:
+        a = (axes[:, n_dense:] & mask).to(torch.int32)
         parts.append(a[:, :, 2, :, None, None] ^ a[:, :, 1, None, :, None] ^ a[:, :, 0, None, None, :])
     rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
-    rows = rows.reshape(u.shape[0], fl.res.shape[0], 8) + fl.offsets[None, :, None]
+    rows = rows.reshape(u.shape[0], res.shape[0], 8) + offsets[None, :, None]
     return rows, frac
 
 
@@ -326,38 +331,103 @@ def _lerp_adjoint(
     return dv
 
 
-class _InterpTable(torch.autograd.Function):
-    """features (and Jacobian) from the table with a hand-written backward to the table.
+def _kernel_forward(u, table, res, mult, offsets, n_dense: int, mask: int, with_jacobian: bool):
+    """Rows, gather and lerps in one function: what torch.compile fuses into one loop."""
+    rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+    v = table[rows.long()]  # (P, Lv, 8, F), plain indexing for the compiler
+    p, nlev = frac.shape[0], frac.shape[1]
+    out, jac = _lerp_forward(v.reshape(p, nlev, 2, 2, 2, table.shape[1]), frac.to(table.dtype),
+                             res.to(table.dtype), with_jacobian)
+    if jac is None:
+        return out, out.new_zeros(0)
+    return out, jac
 
-    Used when the points need no gradient (training: sample points come from geometry). Saves
-    only the int32 rows and the fractions; the backward is one adjoint pass plus one
-    ``index_add``, instead of autograd's many slice/select backward buffers.
+
+def _kernel_backward(u, g_out, g_jac, n_rows: int, res, mult, offsets, n_dense: int, mask: int, with_jacobian: bool):
+    """Recompute rows from u, adjoint of the lerps, scatter-add into a zero table gradient."""
+    rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+    dv = _lerp_adjoint(g_out, g_jac if with_jacobian else None, frac.to(g_out.dtype), res.to(g_out.dtype))
+    feat = dv.shape[-1]
+    g = torch.zeros(n_rows, feat, dtype=dv.dtype, device=dv.device)
+    return g.index_put_((rows.reshape(-1).long(),), dv.reshape(-1, feat), accumulate=True)
+
+
+_COMPILED: dict[str, object] = {}
+_COMPILE_BROKEN: list[str] = []
+
+
+def _compiled(name: str, fn):
+    """torch.compile(fn, dynamic=True), built once per process (None after a failure)."""
+    if _COMPILE_BROKEN:
+        return None
+    if name not in _COMPILED:
+        _COMPILED[name] = torch.compile(fn, dynamic=True)
+    return _COMPILED[name]
+
+
+def _run_compiled(name: str, fn, *args):
+    """Run the compiled kernel, or the eager one if compiling fails (warn once, then stay eager)."""
+    cfn = _compiled(name, fn)
+    if cfn is not None:
+        try:
+            return cfn(*args)
+        except Exception as exc:  # inductor needs a C++ compiler / Triton; never fail the job
+            import warnings
+
+            _COMPILE_BROKEN.append(repr(exc))
+            warnings.warn(f"hash encoding: torch.compile failed ({exc!r:.200}); using the eager kernels",
+                          RuntimeWarning, stacklevel=3)
+    return fn(*args)
+
+
+class _InterpTable(torch.autograd.Function):
+    """Features (and Jacobian) from the table with a hand-written backward to the table.
+
+    Used when the points need no gradient (training: sample points come from geometry). The
+    first-order backward is one adjoint pass plus one scatter-add instead of autograd's many
+    slice/select backward buffers. When a second derivative is being built (grad mode on in the
+    backward) it uses differentiable ops (:func:`_lerp_adjoint` + :class:`_ScatterRows`).
+
+    With ``compiled`` the forward and first-order backward run as torch.compile'd kernels that
+    recompute the rows from u instead of saving them (P x 3 floats saved, not P x Lv x 8 ints).
     """
 
     @staticmethod
-    def forward(ctx, table, rows, frac, res, with_jacobian):
+    def forward(ctx, table, u, res, mult, offsets, n_dense, mask, with_jacobian, compiled):
+        ctx.n_rows = table.shape[0]
+        ctx.meta = (n_dense, mask, with_jacobian, compiled)
+        if compiled:
+            out, jac = _run_compiled("fwd", _kernel_forward, u, table, res, mult, offsets, n_dense, mask,
+                                     with_jacobian)
+            ctx.save_for_backward(u, res, mult, offsets, None, None)
+            return out, jac
+        rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
         p, nlev = frac.shape[0], frac.shape[1]
         v = _gather_impl(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, table.shape[1])
-        out, jac = _lerp_forward(v, frac, res, with_jacobian)
-        ctx.save_for_backward(rows, frac, res)
-        ctx.n_rows = table.shape[0]
-        ctx.with_jacobian = with_jacobian
-        if not with_jacobian:
-            jac = out.new_zeros(0)
-        return out, jac
+        frac = frac.to(table.dtype)
+        out, jac = _lerp_forward(v, frac, res.to(table.dtype), with_jacobian)
+        ctx.save_for_backward(u, res, mult, offsets, rows, frac)
+        return out, (jac if jac is not None else out.new_zeros(0))
 
     @staticmethod
     def backward(ctx, g_out, g_jac):
-        rows, frac, res = ctx.saved_tensors
-        if not ctx.with_jacobian:
-            g_jac = None
-        dv = _lerp_adjoint(g_out, g_jac, frac, res)
+        u, res, mult, offsets, rows, frac = ctx.saved_tensors
+        n_dense, mask, with_jacobian, compiled = ctx.meta
+        if compiled and not torch.is_grad_enabled():
+            g_table = _run_compiled("bwd", _kernel_backward, u, g_out.contiguous(),
+                                    g_jac.contiguous() if with_jacobian else g_out.new_zeros(0),
+                                    ctx.n_rows, res, mult, offsets, n_dense, mask, with_jacobian)
+            return g_table, None, None, None, None, None, None, None, None
+        if rows is None:
+            rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+            frac = frac.to(g_out.dtype)
+        dv = _lerp_adjoint(g_out, g_jac if with_jacobian else None, frac, res.to(g_out.dtype))
         g_table = _ScatterRows.apply(dv.reshape(-1, dv.shape[-1]), rows.reshape(-1), ctx.n_rows)
-        return g_table, None, None, None, None
+        return g_table, None, None, None, None, None, None, None, None
 
 
 def encode_fused(
-    u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False
+    u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False, compiled: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Batched encoding: all levels and corners in one gather from the flat table.
 
@@ -372,6 +442,8 @@ def encode_fused(
         table: (total_rows, F) vertex features.
         fl: device layout.
         with_jacobian: also return the Jacobian.
+        compiled: run the no-grad-in-u kernels through ``torch.compile`` (inductor C++ on CPU,
+            Triton on CUDA); same values, compiled once per process (tens of seconds on CPU).
 
     Returns:
         features (P, n_levels * F) and, if asked, the Jacobian as tangents ``(3, P, n_levels *
@@ -380,15 +452,14 @@ def encode_fused(
     u = u.clamp(0.0, 1.0)
     p, feat = u.shape[0], table.shape[1]
     nlev = fl.res.shape[0]
-    res = fl.res.to(table.dtype)
     if u.requires_grad and torch.is_grad_enabled():
         rows, frac = fused_rows(u, fl)
         v = _GatherRows.apply(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, feat)  # [z, y, x]
-        out, jac = _lerp_forward(v, frac.to(table.dtype), res, with_jacobian)
+        out, jac = _lerp_forward(v, frac.to(table.dtype), fl.res.to(table.dtype), with_jacobian)
     else:
-        with torch.no_grad():
-            rows, frac = fused_rows(u, fl)
-        out, jac = _InterpTable.apply(table, rows, frac.to(table.dtype), res, with_jacobian)
+        res = fl.res.to(u.dtype)
+        out, jac = _InterpTable.apply(table, u.detach(), res, fl.mult, fl.offsets, fl.n_dense, fl.mask,
+                                      with_jacobian, compiled)
         if not with_jacobian:
             jac = None
     out = out.reshape(p, nlev * feat)
@@ -401,14 +472,16 @@ class HashEncoding(torch.nn.Module):
     Args:
         cfg: grid shape (:class:`HashEncodingConfig`).
         fast: use :func:`encode_fused` (batched) instead of :func:`encode_reference` (loop).
+        compiled: with ``fast``, run the fused kernels through torch.compile.
 
     ``forward(u (P,3) in [0,1]^3) -> (P, cfg.output_dim)``.
     """
 
-    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True):
+    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True, compiled: bool = False):
         super().__init__()
         self.cfg = cfg or CPU_ENCODING
         self.fast = fast
+        self.compiled = compiled
         self.layout = LevelLayout(self.cfg)
         self.table = torch.nn.Parameter(
             torch.empty(self.layout.total_rows, self.cfg.n_features).uniform_(-self.cfg.init_scale, self.cfg.init_scale)
@@ -432,12 +505,13 @@ class HashEncoding(torch.nn.Module):
     def forward(self, u: torch.Tensor) -> torch.Tensor:
         self._check(u)
         if self.fast:
-            return encode_fused(u, self.table, self.fused_layout(u.device))[0]
+            return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.compiled)[0]
         return encode_reference(u, self.table, self.layout)
 
     def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Features (P, D) and their Jacobian as tangents (3, P, D) = d features / d u_a."""
         self._check(u)
-        out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True)
+        out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True,
+                                compiled=self.compiled)
         assert jac is not None
         return out, jac

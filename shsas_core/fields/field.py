@@ -54,6 +54,9 @@ class FieldConfig(BaseModel):
         1e-2, gt=0, description="density at initialisation (1/m), from the bias of Re c_00"
     )
     fast: bool = Field(True, description="batched encoding + forward-mode normals (same maths)")
+    compile: bool = Field(
+        False, description="with fast: torch.compile the encoding kernels (pays off on long runs)"
+    )
 
     @property
     def num_coefficients(self) -> int:
@@ -105,7 +108,7 @@ class SHField(torch.nn.Module):
         self.cfg = cfg = cfg or FieldConfig()
         self.degree = cfg.sh_degree
         self.k = cfg.num_coefficients
-        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast)
+        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast, compiled=cfg.fast and cfg.compile)
         dims = [self.encoding.output_dim] + [cfg.hidden] * cfg.layers + [2 * self.k]
         self.linears = torch.nn.ModuleList(torch.nn.Linear(a, b) for a, b in itertools.pairwise(dims))
         last = self.linears[-1]
