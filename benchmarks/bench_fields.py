@@ -1,18 +1,21 @@
 """Benchmark the SH field: ms per forward + backward with normals (create_graph).
 
-Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fast``
-(fused batched encoding + forward-mode normals, ``FieldConfig(fast=True)``), ``compiled``
-(``fast`` plus ``FieldConfig(compile=True)``: encoding kernels through torch.compile; its
-``first ms`` includes the compile).
-
 One training-like step: ``out = field(x, dirs)`` (density, scattering, normals with
 ``create_graph=True``), a loss that uses all three, ``loss.backward()`` to the parameters.
-Each configuration runs in its own subprocess so peak memory is per configuration: on CUDA
-``torch.cuda.max_memory_allocated``, on CPU the growth of the process's peak RSS.
+
+Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fast``
+(fused batched encoding + forward-mode normals, ``FieldConfig(fast=True)``), ``compiled``
+(``fast`` plus ``FieldConfig(compile=True)``: encoding kernels through torch.compile).
+
+Timing: all modes live in one process and their steps are interleaved round by round, so a
+load spike on a shared machine hits every mode alike; min and median over the rounds are
+printed. ``first ms`` is the first call (for ``compiled`` it includes compiling). Peak memory
+comes from a separate subprocess per mode: on CUDA ``torch.cuda.max_memory_allocated``, on CPU
+the growth of the process's peak RSS over one warm-up + one step.
 
     PYTHONPATH=. python benchmarks/bench_fields.py                   # CPU preset, both sizes
     PYTHONPATH=. python benchmarks/bench_fields.py --preset paper_gpu --device cuda
-    PYTHONPATH=. python benchmarks/bench_fields.py --points 65536 --repeats 5 --modes fast compiled
+    PYTHONPATH=. python benchmarks/bench_fields.py --points 65536 --rounds 5 --modes fast compiled
     OMP_NUM_THREADS=1 ...   # pin threads on a shared machine (oversubscribed OpenMP spins)
 """
 
@@ -39,50 +42,73 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_one(points: int, mode: str, preset: str, degree: int, device: str, repeats: int) -> dict:
-    dev = resolve_device(device)
-    torch.manual_seed(0)
+def _make(mode: str, preset: str, degree: int, dev: torch.device) -> SHField:
+    torch.manual_seed(0)  # same parameters in every mode
     cfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), fast=mode != "eager",
                       compile=mode == "compiled")
-    field = SHField(cfg).to(dev)
+    return SHField(cfg).to(dev)
+
+
+def _inputs(field: SHField, points: int, dev: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator(device="cpu").manual_seed(1)
     box = field.cfg.scene_box
-    lo = torch.tensor(box.min, dtype=torch.float32, device=dev)
-    size = torch.tensor(box.size, dtype=torch.float32, device=dev)
-    x = lo + torch.rand(points, 3, device=dev) * size
-    dirs = torch.nn.functional.normalize(torch.randn(points, 3, device=dev), dim=1)
-    lam = torch.tensor([0.3, -0.5, 0.8], device=dev)
+    lo = torch.tensor(box.min, dtype=torch.float32)
+    size = torch.tensor(box.size, dtype=torch.float32)
+    x = lo + torch.rand(points, 3, generator=g) * size
+    dirs = torch.nn.functional.normalize(torch.randn(points, 3, generator=g), dim=1)
+    return x.to(dev), dirs.to(dev)
 
-    def step() -> None:
-        field.zero_grad(set_to_none=True)
-        out = field(x, dirs, with_normals=True, create_graph=True)
-        g = (out["normals"] @ lam).clamp_min(0)
-        loss = (out["scattering"] * g).abs().sum() + out["density"].sum()
-        loss.backward()
 
-    def sync() -> None:
-        if dev.type == "cuda":
-            torch.cuda.synchronize(dev)
+def _step(field: SHField, x: torch.Tensor, dirs: torch.Tensor) -> float:
+    """One forward + backward; returns milliseconds (synchronised on CUDA)."""
+    t0 = time.perf_counter()
+    field.zero_grad(set_to_none=True)
+    out = field(x, dirs, with_normals=True, create_graph=True)
+    lam = torch.tensor([0.3, -0.5, 0.8], device=x.device)
+    g = (out["normals"] @ lam).clamp_min(0)  # a Lambertian-like use of the normals
+    loss = (out["scattering"] * g).abs().sum() + out["density"].sum()
+    loss.backward()
+    if x.device.type == "cuda":
+        torch.cuda.synchronize(x.device)
+    return (time.perf_counter() - t0) * 1e3
 
-    base_rss = _rss_mb()
+
+def peak_memory(points: int, mode: str, preset: str, degree: int, device: str) -> dict:
+    """Warm-up + one step of one mode; peak memory growth in MB (run in a fresh process)."""
+    dev = resolve_device(device)
+    field = _make(mode, preset, degree, dev)
+    x, dirs = _inputs(field, points, dev)
+    base = _rss_mb()
     if dev.type == "cuda":
         torch.cuda.reset_peak_memory_stats(dev)
-    t0 = time.perf_counter()
-    step()  # warm-up (allocator, sphericart, caches)
-    sync()
-    first_ms = (time.perf_counter() - t0) * 1e3
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        step()
-        sync()
-        times.append((time.perf_counter() - t0) * 1e3)
-    peak = torch.cuda.max_memory_allocated(dev) / 2**20 if dev.type == "cuda" else _rss_mb() - base_rss
-    times.sort()
-    return {
-        "points": points, "mode": mode, "preset": preset, "degree": degree, "device": str(dev),
-        "first_ms": first_ms, "min_ms": times[0], "median_ms": times[len(times) // 2], "peak_mb": peak,
-        "threads": torch.get_num_threads(),
-    }
+    _step(field, x, dirs)
+    _step(field, x, dirs)
+    peak = torch.cuda.max_memory_allocated(dev) / 2**20 if dev.type == "cuda" else _rss_mb() - base
+    return {"points": points, "mode": mode, "peak_mb": peak}
+
+
+def timings(points: int, modes: list[str], preset: str, degree: int, device: str, rounds: int) -> dict:
+    dev = resolve_device(device)
+    fields = {m: _make(m, preset, degree, dev) for m in modes}
+    x, dirs = _inputs(next(iter(fields.values())), points, dev)
+    first = {m: _step(f, x, dirs) for m, f in fields.items()}
+    times: dict[str, list[float]] = {m: [] for m in modes}
+    for _ in range(rounds):
+        for m, f in fields.items():
+            times[m].append(_step(f, x, dirs))
+    res = {}
+    for m in modes:
+        t = sorted(times[m])
+        res[m] = {"first_ms": first[m], "min_ms": t[0], "median_ms": t[len(t) // 2]}
+    return res
+
+
+def _subprocess(args: list[str]) -> dict | str:
+    proc = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True)
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-1:] or [f"exit {proc.returncode}"]
+        return f"failed: {tail[0][:120]}"
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
@@ -91,36 +117,39 @@ def main() -> None:
     ap.add_argument("--preset", default="cpu", help="encoding preset: cpu or paper_gpu")
     ap.add_argument("--degree", type=int, default=3)
     ap.add_argument("--device", default="auto")
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--modes", nargs="*", choices=list(MODES), default=list(MODES))
-    ap.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--no-memory", action="store_true", help="skip the per-mode memory subprocesses")
+    ap.add_argument("--memory-one", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--timing-one", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    if args.one:
-        res = run_one(args.points[0], args.modes[0], args.preset, args.degree, args.device, args.repeats)
-        print(json.dumps(res))
+    if args.memory_one:
+        print(json.dumps(peak_memory(args.points[0], args.modes[0], args.preset, args.degree, args.device)))
         return
-    modes = args.modes
+    if args.timing_one:
+        print(json.dumps(timings(args.points[0], args.modes, args.preset, args.degree, args.device, args.rounds)))
+        return
+    common = ["--preset", args.preset, "--degree", str(args.degree), "--device", args.device]
     print(f"SHField forward+backward with normals (create_graph), L={args.degree}, preset={args.preset}, "
-          f"device={resolve_device(args.device)}, torch {torch.__version__}")
-    print(f"threads: {torch.get_num_threads()}")
+          f"device={resolve_device(args.device)}, torch {torch.__version__}, threads {torch.get_num_threads()}")
     print(f"{'points':>9} {'mode':>8} {'first ms':>10} {'min ms':>10} {'median ms':>10} {'peak MB':>9}")
-    rows = {}
     for p in args.points:
-        for mode in modes:
-            cmd = [sys.executable, __file__, "--one", "--points", str(p), "--modes", mode, "--preset", args.preset,
-                   "--degree", str(args.degree), "--device", args.device, "--repeats", str(args.repeats)]
-            proc = subprocess.run(cmd, capture_output=True, text=True)
-            if proc.returncode != 0:
-                print(f"{p:>9} {mode:>8} failed: {proc.stderr.strip().splitlines()[-1:]}")
-                continue
-            r = json.loads(proc.stdout.strip().splitlines()[-1])
-            rows[(p, mode)] = r
-            print(f"{p:>9} {mode:>8} {r['first_ms']:>10.1f} {r['min_ms']:>10.1f} {r['median_ms']:>10.1f} "
-                  f"{r['peak_mb']:>9.0f}", flush=True)
-        for mode in ("fast", "compiled"):
-            if (p, "eager") in rows and (p, mode) in rows:
-                sp = rows[(p, "eager")]["median_ms"] / rows[(p, mode)]["median_ms"]
-                print(f"{p:>9} speedup eager/{mode} (median): {sp:.2f}x")
+        tim = _subprocess(["--timing-one", "--points", str(p), "--rounds", str(args.rounds),
+                           "--modes", *args.modes, *common])
+        for mode in args.modes:
+            mem = "-" if args.no_memory else _subprocess(["--memory-one", "--points", str(p), "--modes", mode, *common])
+            mem_s = f"{mem['peak_mb']:>9.0f}" if isinstance(mem, dict) else f"{mem!s:>9}"
+            if isinstance(tim, dict):
+                r = tim[mode]
+                print(f"{p:>9} {mode:>8} {r['first_ms']:>10.1f} {r['min_ms']:>10.1f} {r['median_ms']:>10.1f} {mem_s}",
+                      flush=True)
+            else:
+                print(f"{p:>9} {mode:>8} timing {tim} {mem_s}", flush=True)
+        if isinstance(tim, dict) and "eager" in tim:
+            for mode in ("fast", "compiled"):
+                if mode in tim:
+                    sp = tim["eager"]["median_ms"] / tim[mode]["median_ms"]
+                    print(f"{p:>9} speedup eager/{mode} (median): {sp:.2f}x")
 
 
 if __name__ == "__main__":
