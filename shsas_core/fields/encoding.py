@@ -18,9 +18,9 @@ Two implementations of the same maths:
 
 * :func:`encode_reference`: the plain eager version, a Python loop over levels and corners; the
   reference every faster path is tested against.
-* :func:`encode_fused`: all levels and corners in one batched gather (``index_select`` on a
-  complex view of the table, whose backward is a matching ``index_add``), no Python loop over
-  levels, nested lerps instead of 8 corner weights. Optionally also returns the analytic spatial
+* :func:`encode_fused`: all levels and corners in one batched gather per feature (1-D
+  ``index_select`` with int32 rows, feature-major layout; its backward a matching ``index_add``),
+  no Python loop over levels, nested lerps instead of 8 corner weights. Optionally also returns the analytic spatial
   Jacobian of the features (as tangents (3, P, D)) from the same gathered corner values; the
   field uses it to get normals by forward-mode differentiation in the same pass.
 
@@ -188,53 +188,12 @@ class FusedLayout:
         self.total_rows = layout.total_rows
 
 
-def _as_rows(t: torch.Tensor) -> torch.Tensor:
-    """(N, 2) real -> (N,) complex view (one 8/16-byte element per row) for faster index ops."""
-    return torch.view_as_complex(t) if t.shape[1] == 2 and t.is_contiguous() else t
-
-
-def _gather_impl(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
-    src = _as_rows(table)
-    out = src.index_select(0, rows)
-    return torch.view_as_real(out) if out.is_complex() else out
-
-
-def _scatter_impl(grad: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
-    grad = grad.contiguous()
-    src = _as_rows(grad)
-    acc = torch.zeros((n_rows, *src.shape[1:]), dtype=src.dtype, device=src.device)
-    acc.index_add_(0, rows, src)
-    return torch.view_as_real(acc) if acc.is_complex() else acc
-
-
-class _GatherRows(torch.autograd.Function):
-    """table[rows] whose backward is :class:`_ScatterRows` (and vice versa): differentiable to
-    any order. Same values as ``index_select``; the backward adds rows as complex numbers when
-    F = 2 (one index_add element per row), several times faster on CPU than the stock
-    ``index_select`` backward."""
-
-    @staticmethod
-    def forward(ctx, table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
-        ctx.save_for_backward(rows)
-        ctx.n_rows = table.shape[0]
-        return _gather_impl(table, rows)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor):
-        (rows,) = ctx.saved_tensors
-        return _ScatterRows.apply(grad, rows, ctx.n_rows), None
-
-
-class _ScatterRows(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, grad: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
-        ctx.save_for_backward(rows)
-        return _scatter_impl(grad, rows, n_rows)
-
-    @staticmethod
-    def backward(ctx, gg: torch.Tensor):
-        (rows,) = ctx.saved_tensors
-        return _GatherRows.apply(gg, rows), None, None
+# ---------------------------------------------------------------------------------------------
+# Fused path. Everything is laid out feature-major and corner-major with (P, Lv) innermost:
+# rows (8, P, Lv), corner values (F, 2z, 2y, 2x, P, Lv), fractions (3, P, Lv). Then every
+# elementwise op broadcasts over leading axes and runs over long contiguous inner loops, and the
+# gather/scatter are 1-D index_select/index_add with int32 indices (the fast CPU kernels);
+# a feature-minor layout (inner axis F = 2) was several times slower in eager PyTorch.
 
 
 def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Tensor]:
@@ -244,8 +203,8 @@ def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Te
         u: (P, 3) points, already clamped to [0, 1].
 
     Returns:
-        rows (P, Lv, 8) int32 (corner c = 4 cz + 2 cy + cx, level offsets included) and
-        frac (P, Lv, 3) in u's dtype (differentiable in u).
+        rows (8, P, Lv) int32 (corner c = 4 cz + 2 cy + cx, level offsets included) and
+        frac (3, P, Lv) in u's dtype (differentiable in u).
     """
     return _rows_frac(u, fl.res.to(u.dtype), fl.mult, fl.offsets, fl.n_dense, fl.mask)
 
@@ -254,25 +213,42 @@ def _rows_frac(
     u: torch.Tensor, res: torch.Tensor, mult: torch.Tensor, offsets: torch.Tensor, n_dense: int, mask: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """:func:`fused_rows` on explicit tensors (traceable by torch.compile)."""
-    i0, frac = _cell(u[:, None, :], res[None, :, None])  # (P, Lv, 3)
+    xs = u.t()[:, :, None] * res  # (3, P, Lv)
+    lo = torch.minimum(torch.floor(xs), res - 1).clamp_min(0)  # last cell at u = 1, see _cell
+    frac = xs - lo
     # Row = combine over axes of (i0_a + c_a) * mult_a: a sum on dense levels, an xor on hashed
-    # ones. Multiplying per axis before combining keeps the temporaries at (P, Lv, 3, 2); only
-    # the final (P, Lv, 8) index is materialised. Masking each hashed term with T - 1 before
-    # the xor is exact because bitwise and distributes over xor.
-    # The per-axis terms are < 2^24 after masking, so the combination runs in int32 (half the
-    # memory traffic of int64; index_select and index_add accept int32 indices).
-    corner = torch.arange(2, device=u.device)
-    axes = (i0[..., None] + corner) * mult[None, :, :, None]  # (P, Lv, 3, 2) int64
+    # ones (levels are sorted by resolution, so the dense ones are a prefix). Multiplying per
+    # axis before combining keeps the temporaries at (2, 3, P, Lv); masking each hashed term
+    # with T - 1 before the xor is exact because bitwise and distributes over xor. After the
+    # mask every term is < 2^24, so the combination runs in int32.
+    corner = torch.arange(2, device=u.device).view(2, 1, 1, 1)
+    axes = (lo.long()[None] + corner) * mult.t()[None, :, None, :]  # (2, 3, P, Lv) int64
     parts = []
     if n_dense > 0:
-        a = axes[:, :n_dense].to(torch.int32)
-        parts.append(a[:, :, 2, :, None, None] + a[:, :, 1, None, :, None] + a[:, :, 0, None, None, :])
-    if n_dense < axes.shape[1]:
-        a = (axes[:, n_dense:] & mask).to(torch.int32)
-        parts.append(a[:, :, 2, :, None, None] ^ a[:, :, 1, None, :, None] ^ a[:, :, 0, None, None, :])
-    rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
-    rows = rows.reshape(u.shape[0], res.shape[0], 8) + offsets[None, :, None]
+        a = axes[..., :n_dense].to(torch.int32)
+        parts.append(a[:, 2][:, None, None] + a[:, 1][None, :, None] + a[:, 0][None, None, :])
+    if n_dense < axes.shape[-1]:
+        a = (axes[..., n_dense:] & mask).to(torch.int32)
+        parts.append(a[:, 2][:, None, None] ^ a[:, 1][None, :, None] ^ a[:, 0][None, None, :])
+    rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)  # (2z, 2y, 2x, P, Lv)
+    rows = (rows + offsets).reshape(8, u.shape[0], res.shape[0])
     return rows, frac
+
+
+def _gather(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    """Corner values (F, 2z, 2y, 2x, P, Lv) of table (N, F) at rows (8, P, Lv)."""
+    tab_t = table.t().contiguous()  # (F, N): one 1-D gather per feature
+    flat = rows.reshape(-1)
+    v = torch.stack([tab_t[f].index_select(0, flat) for f in range(tab_t.shape[0])])
+    return v.reshape(tab_t.shape[0], 2, 2, 2, *rows.shape[1:])
+
+
+def _scatter(dv: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
+    """Adjoint of :func:`_gather`: (F, 2, 2, 2, P, Lv) values added into a zero (N, F) table."""
+    flat = rows.reshape(-1)
+    feat = dv.shape[0]
+    cols = [dv.new_zeros(n_rows).index_add(0, flat, dv[f].reshape(-1)) for f in range(feat)]
+    return torch.stack(cols, 1)
 
 
 def _lerp_forward(
@@ -280,76 +256,81 @@ def _lerp_forward(
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Trilinear interpolation of gathered corners by nested lerps, and its spatial Jacobian.
 
-    v: (P, Lv, 2z, 2y, 2x, F) corner values; frac: (P, Lv, 3); res: (Lv,).
-    Returns out (P, Lv, F) and jac (3, P, Lv, F) (d out / d u_a) or None.
+    v: (F, 2z, 2y, 2x, P, Lv) corner values; frac: (3, P, Lv); res: (Lv,).
+    Returns out (F, P, Lv) and jac (3, F, P, Lv) (d out / d u_a), or None.
     """
-    fx = frac[:, :, 0, None, None, None]
-    fy = frac[:, :, 1, None, None]
-    fz = frac[:, :, 2, None]
-    dx = v[:, :, :, :, 1] - v[:, :, :, :, 0]  # (P, Lv, 2z, 2y, F)
-    a = v[:, :, :, :, 0] + fx * dx
-    dy = a[:, :, :, 1] - a[:, :, :, 0]  # (P, Lv, 2z, F)
-    b = a[:, :, :, 0] + fy * dy
-    dz = b[:, :, 1] - b[:, :, 0]  # (P, Lv, F)
-    out = b[:, :, 0] + fz * dz
+    fx, fy, fz = frac[0], frac[1], frac[2]
+    dx = v[:, :, :, 1] - v[:, :, :, 0]  # (F, 2z, 2y, P, Lv)
+    a = v[:, :, :, 0] + fx * dx
+    dy = a[:, :, 1] - a[:, :, 0]  # (F, 2z, P, Lv)
+    b = a[:, :, 0] + fy * dy
+    dz = b[:, 1] - b[:, 0]  # (F, P, Lv)
+    out = b[:, 0] + fz * dz
     if not with_jacobian:
         return out, None
-    r = res[None, :, None]
-    cx = dx[:, :, :, 0] + fy * (dx[:, :, :, 1] - dx[:, :, :, 0])  # lerp_y of the x-differences
-    jx = (cx[:, :, 0] + fz * (cx[:, :, 1] - cx[:, :, 0])) * r
-    jy = (dy[:, :, 0] + fz * (dy[:, :, 1] - dy[:, :, 0])) * r
-    return out, torch.stack((jx, jy, dz * r), 0)
+    cx = dx[:, :, 0] + fy * (dx[:, :, 1] - dx[:, :, 0])  # lerp_y of the x-differences
+    jx = (cx[:, 0] + fz * (cx[:, 1] - cx[:, 0])) * res
+    jy = (dy[:, 0] + fz * (dy[:, 1] - dy[:, 0])) * res
+    return out, torch.stack((jx, jy, dz * res), 0)
 
 
 def _lerp_adjoint(
-    g_out: torch.Tensor | None, g_jac: torch.Tensor | None, frac: torch.Tensor, res: torch.Tensor
+    g_out: torch.Tensor, g_jac: torch.Tensor | None, frac: torch.Tensor, res: torch.Tensor
 ) -> torch.Tensor:
     """Gradient w.r.t. the corner values v of :func:`_lerp_forward` (which is linear in v).
 
-    With per-axis weights W_a = (1 - f_a, f_a) and slopes S_a = res (-1, +1):
-    out = Σ Wz Wy Wx v, jac_x = Σ Wz Wy Sx v, jac_y = Σ Wz Sy Wx v, jac_z = Σ Sz Wy Wx v, so
-    dv = Wz ⊗ (Wy ⊗ (Wx g_out + Sx g_x) + Sy ⊗ Wx g_y) + Sz ⊗ Wy ⊗ Wx g_z.
-    Built from differentiable ops: the backward can itself be differentiated (double backward).
-    Returns (P, Lv, 2z, 2y, 2x, F).
+    With per-axis weights W_a = (1 - f_a, f_a) and slopes S = res (-1, +1):
+    out = Σ Wz Wy Wx v, jac_x = Σ Wz Wy S v, jac_y = Σ Wz S Wx v, jac_z = Σ S Wy Wx v, so
+    dv = Wz ⊗ (Wy ⊗ (Wx g_out + S g_x) + S ⊗ Wx g_y) + S ⊗ Wy ⊗ Wx g_z.
+    g_out: (F, P, Lv); g_jac: (3, F, P, Lv) or None. Built from differentiable ops, so this
+    backward can itself be differentiated (double backward). Returns (F, 2z, 2y, 2x, P, Lv).
     """
+    fx, fy, fz = frac[0], frac[1], frac[2]
+    wx = torch.stack((1 - fx, fx))  # (2, P, Lv)
+    wy = torch.stack((1 - fy, fy))[:, None]  # (2y, 1, P, Lv)
+    wz = torch.stack((1 - fz, fz))[:, None, None]  # (2z, 1, 1, P, Lv)
     sgn = torch.tensor([-1.0, 1.0], dtype=frac.dtype, device=frac.device)
-    w = torch.stack((1 - frac, frac), -1)  # (P, Lv, 3, 2)
-    wx, wy, wz = w[:, :, 0, :, None], w[:, :, 1, :, None], w[:, :, 2, :, None]  # (P, Lv, 2, 1)
-    sx = sy = sz = (res[:, None] * sgn)[None, :, :, None]  # (1, Lv, 2, 1), same on every axis
-    if g_out is None:
-        g_out = torch.zeros_like(g_jac[0])
-    gx = g_out[:, :, None] * wx  # (P, Lv, 2x, F)
-    if g_jac is not None:
-        gx = gx + g_jac[0][:, :, None] * sx
-    bb = wy[..., None, :] * gx[:, :, None]  # (P, Lv, 2y, 2x, F)
-    if g_jac is not None:
-        bb = bb + sy[..., None, :] * (g_jac[1][:, :, None] * wx)[:, :, None]
-    dv = wz[..., None, None, :] * bb[:, :, None]  # (P, Lv, 2z, 2y, 2x, F)
-    if g_jac is not None:
-        c = wy[..., None, :] * (g_jac[2][:, :, None] * wx)[:, :, None]
-        dv = dv + sz[..., None, None, :] * c[:, :, None]
-    return dv
+    s = sgn[:, None, None] * res  # (2, 1, Lv)
+    gx = g_out[:, None] * wx  # (F, 2x, P, Lv)
+    if g_jac is None:
+        return wz * (wy * gx[:, None])[:, None]
+    gx = gx + g_jac[0][:, None] * s
+    bb = wy * gx[:, None] + s[:, None] * (g_jac[1][:, None] * wx)[:, None]  # (F, 2y, 2x, P, Lv)
+    cc = wy * (g_jac[2][:, None] * wx)[:, None]
+    return wz * bb[:, None] + s[:, None, None] * cc[:, None]
+
+
+def _to_point_major(out: torch.Tensor, jac: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(F, P, Lv) -> (P, Lv*F) level-major features; (3, F, P, Lv) -> (3, P, Lv*F) (or empty)."""
+    feat, p, nlev = out.shape
+    o = out.permute(1, 2, 0).reshape(p, nlev * feat)
+    if jac is None:
+        return o, out.new_zeros(0)
+    return o, jac.permute(0, 2, 3, 1).reshape(3, p, nlev * feat)
+
+
+def _to_feature_major(g: torch.Tensor, nlev: int) -> torch.Tensor:
+    """Inverse of :func:`_to_point_major` for gradients: (..., P, Lv*F) -> (..., F, P, Lv)."""
+    g = g.reshape(*g.shape[:-1], nlev, g.shape[-1] // nlev)  # (..., P, Lv, F)
+    return g.movedim(-1, -3).contiguous()
 
 
 def _kernel_forward(u, table, res, mult, offsets, n_dense: int, mask: int, with_jacobian: bool):
-    """Rows, gather and lerps in one function: what torch.compile fuses into one loop."""
+    """Rows, gather, lerps: what torch.compile fuses into a few loops."""
     rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
-    v = table[rows.long()]  # (P, Lv, 8, F), plain indexing for the compiler
-    p, nlev = frac.shape[0], frac.shape[1]
-    out, jac = _lerp_forward(v.reshape(p, nlev, 2, 2, 2, table.shape[1]), frac.to(table.dtype),
-                             res.to(table.dtype), with_jacobian)
-    if jac is None:
-        return out, out.new_zeros(0)
-    return out, jac
+    out, jac = _lerp_forward(_gather(table, rows), frac.to(table.dtype), res.to(table.dtype), with_jacobian)
+    return _to_point_major(out, jac)
 
 
-def _kernel_backward(u, g_out, g_jac, n_rows: int, res, mult, offsets, n_dense: int, mask: int, with_jacobian: bool):
+def _kernel_backward(u, g_out, g_jac, n_rows: int, res, mult, offsets, n_dense: int, mask: int,
+                     with_jacobian: bool):
     """Recompute rows from u, adjoint of the lerps, scatter-add into a zero table gradient."""
     rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
-    dv = _lerp_adjoint(g_out, g_jac if with_jacobian else None, frac.to(g_out.dtype), res.to(g_out.dtype))
-    feat = dv.shape[-1]
-    g = torch.zeros(n_rows, feat, dtype=dv.dtype, device=dv.device)
-    return g.index_put_((rows.reshape(-1).long(),), dv.reshape(-1, feat), accumulate=True)
+    nlev = res.shape[0]
+    go = _to_feature_major(g_out, nlev)
+    gj = _to_feature_major(g_jac, nlev) if with_jacobian else None
+    dv = _lerp_adjoint(go, gj, frac.to(go.dtype), res.to(go.dtype))
+    return _scatter(dv, rows, n_rows)
 
 
 _COMPILED: dict[str, object] = {}
@@ -384,12 +365,12 @@ class _InterpTable(torch.autograd.Function):
     """Features (and Jacobian) from the table with a hand-written backward to the table.
 
     Used when the points need no gradient (training: sample points come from geometry). The
-    first-order backward is one adjoint pass plus one scatter-add instead of autograd's many
-    slice/select backward buffers. When a second derivative is being built (grad mode on in the
-    backward) it uses differentiable ops (:func:`_lerp_adjoint` + :class:`_ScatterRows`).
+    backward is one adjoint pass plus one index_add per feature, instead of autograd's many
+    slice/select backward buffers. It is built from differentiable ops, so a double backward
+    (create_graph) through it works.
 
-    With ``compiled`` the forward and first-order backward run as torch.compile'd kernels that
-    recompute the rows from u instead of saving them (P x 3 floats saved, not P x Lv x 8 ints).
+    With ``compiled`` the forward and the first-order backward run as torch.compile'd kernels
+    that recompute the rows from u instead of saving them.
     """
 
     @staticmethod
@@ -397,17 +378,14 @@ class _InterpTable(torch.autograd.Function):
         ctx.n_rows = table.shape[0]
         ctx.meta = (n_dense, mask, with_jacobian, compiled)
         if compiled:
-            out, jac = _run_compiled("fwd", _kernel_forward, u, table, res, mult, offsets, n_dense, mask,
-                                     with_jacobian)
             ctx.save_for_backward(u, res, mult, offsets, None, None)
-            return out, jac
+            return _run_compiled("fwd", _kernel_forward, u, table, res, mult, offsets, n_dense, mask,
+                                 with_jacobian)
         rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
-        p, nlev = frac.shape[0], frac.shape[1]
-        v = _gather_impl(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, table.shape[1])
         frac = frac.to(table.dtype)
-        out, jac = _lerp_forward(v, frac, res.to(table.dtype), with_jacobian)
+        out, jac = _lerp_forward(_gather(table, rows), frac, res.to(table.dtype), with_jacobian)
         ctx.save_for_backward(u, res, mult, offsets, rows, frac)
-        return out, (jac if jac is not None else out.new_zeros(0))
+        return _to_point_major(out, jac)
 
     @staticmethod
     def backward(ctx, g_out, g_jac):
@@ -421,15 +399,17 @@ class _InterpTable(torch.autograd.Function):
         if rows is None:
             rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
             frac = frac.to(g_out.dtype)
-        dv = _lerp_adjoint(g_out, g_jac if with_jacobian else None, frac, res.to(g_out.dtype))
-        g_table = _ScatterRows.apply(dv.reshape(-1, dv.shape[-1]), rows.reshape(-1), ctx.n_rows)
-        return g_table, None, None, None, None, None, None, None, None
+        nlev = res.shape[0]
+        go = _to_feature_major(g_out, nlev)
+        gj = _to_feature_major(g_jac, nlev) if with_jacobian else None
+        dv = _lerp_adjoint(go, gj, frac, res.to(g_out.dtype))
+        return _scatter(dv, rows, ctx.n_rows), None, None, None, None, None, None, None, None
 
 
 def encode_fused(
     u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False, compiled: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Batched encoding: all levels and corners in one gather from the flat table.
+    """Batched encoding: all levels and corners in one gather per feature from the flat table.
 
     Interpolation is done as nested lerps (x, then y, then z) on the gathered corner values,
     and the spatial Jacobian reuses the same differences, so it costs a few extra lerps. When
@@ -450,20 +430,15 @@ def encode_fused(
         F)``: entry ``[a, p, d] = d feature_d / d u_a`` at point p (else None).
     """
     u = u.clamp(0.0, 1.0)
-    p, feat = u.shape[0], table.shape[1]
-    nlev = fl.res.shape[0]
     if u.requires_grad and torch.is_grad_enabled():
         rows, frac = fused_rows(u, fl)
-        v = _GatherRows.apply(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, feat)  # [z, y, x]
-        out, jac = _lerp_forward(v, frac.to(table.dtype), fl.res.to(table.dtype), with_jacobian)
+        out, jac = _lerp_forward(_gather(table, rows), frac.to(table.dtype), fl.res.to(table.dtype),
+                                 with_jacobian)
+        out, jac = _to_point_major(out, jac)
     else:
-        res = fl.res.to(u.dtype)
-        out, jac = _InterpTable.apply(table, u.detach(), res, fl.mult, fl.offsets, fl.n_dense, fl.mask,
-                                      with_jacobian, compiled)
-        if not with_jacobian:
-            jac = None
-    out = out.reshape(p, nlev * feat)
-    return out, (jac.reshape(3, p, nlev * feat) if jac is not None else None)
+        out, jac = _InterpTable.apply(table, u.detach(), fl.res.to(u.dtype), fl.mult, fl.offsets, fl.n_dense,
+                                      fl.mask, with_jacobian, compiled)
+    return out, (jac if with_jacobian else None)
 
 
 class HashEncoding(torch.nn.Module):
