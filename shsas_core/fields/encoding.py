@@ -260,18 +260,19 @@ def _lerp_forward(
     Returns out (F, P, Lv) and jac (3, F, P, Lv) (d out / d u_a), or None.
     """
     fx, fy, fz = frac[0], frac[1], frac[2]
+    if not with_jacobian:  # torch.lerp: one kernel per level of the tree
+        a = torch.lerp(v[:, :, :, 0], v[:, :, :, 1], fx)  # (F, 2z, 2y, P, Lv)
+        b = torch.lerp(a[:, :, 0], a[:, :, 1], fy)  # (F, 2z, P, Lv)
+        return torch.lerp(b[:, 0], b[:, 1], fz), None
     dx = v[:, :, :, 1] - v[:, :, :, 0]  # (F, 2z, 2y, P, Lv)
-    a = v[:, :, :, 0] + fx * dx
+    a = torch.addcmul(v[:, :, :, 0], fx, dx)
     dy = a[:, :, 1] - a[:, :, 0]  # (F, 2z, P, Lv)
-    b = a[:, :, 0] + fy * dy
+    b = torch.addcmul(a[:, :, 0], fy, dy)
     dz = b[:, 1] - b[:, 0]  # (F, P, Lv)
-    out = b[:, 0] + fz * dz
-    if not with_jacobian:
-        return out, None
-    cx = dx[:, :, 0] + fy * (dx[:, :, 1] - dx[:, :, 0])  # lerp_y of the x-differences
-    jx = (cx[:, 0] + fz * (cx[:, 1] - cx[:, 0])) * res
-    jy = (dy[:, 0] + fz * (dy[:, 1] - dy[:, 0])) * res
-    return out, torch.stack((jx, jy, dz * res), 0)
+    out = torch.addcmul(b[:, 0], fz, dz)
+    cx = torch.lerp(dx[:, :, 0], dx[:, :, 1], fy)  # lerp_y of the x-differences, (F, 2z, P, Lv)
+    jac = torch.stack((torch.lerp(cx[:, 0], cx[:, 1], fz), torch.lerp(dy[:, 0], dy[:, 1], fz), dz), 0)
+    return out, jac * res
 
 
 def _lerp_adjoint(
@@ -285,19 +286,25 @@ def _lerp_adjoint(
     g_out: (F, P, Lv); g_jac: (3, F, P, Lv) or None. Built from differentiable ops, so this
     backward can itself be differentiated (double backward). Returns (F, 2z, 2y, 2x, P, Lv).
     """
+    # Each axis splits a gradient g into (1 - f) g + ... and f g + ...; the (1 - f) half is
+    # computed as g - (f half), which halves the number of full-size products.
     fx, fy, fz = frac[0], frac[1], frac[2]
-    wx = torch.stack((1 - fx, fx))  # (2, P, Lv)
-    wy = torch.stack((1 - fy, fy))[:, None]  # (2y, 1, P, Lv)
-    wz = torch.stack((1 - fz, fz))[:, None, None]  # (2z, 1, 1, P, Lv)
-    sgn = torch.tensor([-1.0, 1.0], dtype=frac.dtype, device=frac.device)
-    s = sgn[:, None, None] * res  # (2, 1, Lv)
-    gx = g_out[:, None] * wx  # (F, 2x, P, Lv)
+
+    def split(total: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
+        return torch.stack((total - upper, upper), 1)
+
     if g_jac is None:
-        return wz * (wy * gx[:, None])[:, None]
-    gx = gx + g_jac[0][:, None] * s
-    bb = wy * gx[:, None] + s[:, None] * (g_jac[1][:, None] * wx)[:, None]  # (F, 2y, 2x, P, Lv)
-    cc = wy * (g_jac[2][:, None] * wx)[:, None]
-    return wz * bb[:, None] + s[:, None, None] * cc[:, None]
+        gx = split(g_out, g_out * fx)  # (F, 2x, P, Lv)
+        bb = split(gx, fy * gx)  # (F, 2y, 2x, P, Lv)
+        return split(bb, fz * bb)  # (F, 2z, 2y, 2x, P, Lv)
+    gjx, gjy, gjz = g_jac[0], g_jac[1], g_jac[2]
+    # x: W g_out + S g_jx, with S = res (-1, +1): the lower half is g_out - upper
+    gx = split(g_out, torch.addcmul(g_out * fx, gjx, res.expand_as(gjx)))
+    hy = split(gjy, gjy * fx)  # Wx g_jy
+    bb = split(gx, torch.addcmul(fy * gx, hy, res.expand_as(hy)))  # Wy gx + S (Wx g_jy)
+    kx = split(gjz, gjz * fx)  # Wx g_jz
+    cc = split(kx, fy * kx)  # Wy Wx g_jz
+    return split(bb, torch.addcmul(fz * bb, cc, res.expand_as(cc)))  # Wz bb + S cc
 
 
 def _to_point_major(out: torch.Tensor, jac: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
