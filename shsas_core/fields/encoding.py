@@ -239,16 +239,27 @@ def _gather(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
     """Corner values (F, 2z, 2y, 2x, P, Lv) of table (N, F) at rows (8, P, Lv)."""
     tab_t = table.t().contiguous()  # (F, N): one 1-D gather per feature
     flat = rows.reshape(-1)
-    v = torch.stack([tab_t[f].index_select(0, flat) for f in range(tab_t.shape[0])])
-    return v.reshape(tab_t.shape[0], 2, 2, 2, *rows.shape[1:])
+    feat = tab_t.shape[0]
+    if torch.is_grad_enabled():
+        v = torch.stack([tab_t[f].index_select(0, flat) for f in range(feat)])
+    else:  # gather straight into the output (no stack copy); out= is not differentiable
+        v = tab_t.new_empty((feat, flat.shape[0]))
+        for f in range(feat):
+            torch.index_select(tab_t[f], 0, flat, out=v[f])
+    return v.reshape(feat, 2, 2, 2, *rows.shape[1:])
 
 
 def _scatter(dv: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
     """Adjoint of :func:`_gather`: (F, 2, 2, 2, P, Lv) values added into a zero (N, F) table."""
     flat = rows.reshape(-1)
     feat = dv.shape[0]
-    cols = [dv.new_zeros(n_rows).index_add(0, flat, dv[f].reshape(-1)) for f in range(feat)]
-    return torch.stack(cols, 1)
+    if torch.is_grad_enabled():
+        cols = [dv.new_zeros(n_rows).index_add(0, flat, dv[f].reshape(-1)) for f in range(feat)]
+        return torch.stack(cols, 1)
+    acc = dv.new_zeros((feat, n_rows))
+    for f in range(feat):
+        acc[f].index_add_(0, flat, dv[f].reshape(-1))
+    return acc.t()
 
 
 def _lerp_forward(
