@@ -245,6 +245,18 @@ def test_bad_input() -> None:
         FieldConfig(zeta=0)
 
 
+def test_config_json_and_state_dict_round_trip() -> None:
+    # what a checkpoint stores: the config as JSON and the state dict
+    field, _ = _pair(2, zeta=1.5)
+    cfg = FieldConfig.model_validate_json(field.cfg.model_dump_json())
+    assert cfg == field.cfg
+    again = SHField(cfg).double()
+    again.load_state_dict(field.state_dict())
+    x, d = _inside(20), _dirs(20)
+    for k, v in field(x, d).items():
+        torch.testing.assert_close(again(x, d)[k], v, rtol=0, atol=0)
+
+
 @pytest.mark.gpu
 def test_fast_matches_eager_on_cuda() -> None:
     eager, fast = (f.float().cuda() for f in _pair(3))
