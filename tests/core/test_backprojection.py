@@ -251,3 +251,25 @@ def test_cancel_and_bad_input():
     with pytest.raises(ShsasError, match="tx/rx"):
         backproject(sig, tx[:3], rx, t0, fs, c, pts, config=EAGER)
     assert backproject(sig, tx, rx, t0, fs, c, np.zeros((0, 3)), config=EAGER).shape == (0,)
+
+
+def test_cli_backproject_writes_volume(tmp_path, capsys):
+    from shsas_core.cli import main
+    from shsas_core.io import write_survey
+
+    grid = Grid.over(SceneBox(), 16)
+    centres = grid.points().reshape(*grid.shape, 3)
+    target = centres[5, 9, 4]
+    s = _helix_survey(target[None], n=60, t=500)
+    path = write_survey(s, tmp_path / "s.h5")
+    rc = main(["backproject", str(path), "--grid", "16", "--out", str(tmp_path / "bp"), "--quiet",
+               "--backend", "eager"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert out["peak_voxel"] == [5, 9, 4] and out["signal"] == "wiener deconvolution"
+    vol = np.load(tmp_path / "bp" / "volume.npy")
+    assert vol.shape == grid.shape and vol.dtype == np.complex64
+    info = json.loads((tmp_path / "bp" / "grid.json").read_text())
+    assert info["shape"] == list(grid.shape) and info["signal"] == "wiener deconvolution"
+    assert main(["backproject", str(path), "--grid", "1", "--out", str(tmp_path / "x")]) == 2
+    assert "--grid" in capsys.readouterr().err
