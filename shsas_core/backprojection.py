@@ -53,7 +53,7 @@ class BackprojectionConfig(BaseModel):
     ping_chunk: int = Field(256, ge=1, le=1 << 20, description="pings per kernel call")
     backend: Literal["auto", "compiled", "eager"] = Field(
         "auto", description="compiled = torch.compile kernel; auto compiles for large problems "
-        "(>= 3e8 voxel-pings) and falls back to eager if compilation is unavailable")
+        "(>= 5e7 voxel-pings) and falls back to eager if compilation is unavailable")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,8 +158,8 @@ def _bp_block(
 _COMPILED: dict[str, object] = {}
 
 #: With backend "auto", problems below this many voxel-pings run eagerly: compilation takes
-#: ~10-30 s on a 2-core CPU, which the compiled kernel only wins back on larger problems.
-AUTO_COMPILE_MIN_WORK = 300_000_000
+#: ~10-30 s on a 2-core CPU (a few s with a warm inductor cache), won back above ~5e7.
+AUTO_COMPILE_MIN_WORK = 50_000_000
 
 
 def _kernel(backend: str, device: torch.device):
