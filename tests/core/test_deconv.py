@@ -178,3 +178,14 @@ def test_phase_gradient_matches_numpy():
     y = torch.zeros((1, 10), dtype=torch.complex128, requires_grad=True)
     phase_gradient_l1(y, 1e-3).backward()
     assert torch.isfinite(y.grad).all()
+
+
+@pytest.mark.gpu
+def test_neural_on_cuda_finds_the_same_impulses():
+    delays = np.array([3.6e-3, 4.75e-3])
+    s = _trace_survey(delays, [1.0, 0.7], t=500, n=2)
+    y = deconvolve(s, NEURAL, device="cuda")
+    a = np.abs(y[0])
+    loc = np.flatnonzero((a[1:-1] > a[:-2]) & (a[1:-1] >= a[2:])) + 1
+    top = np.sort(loc[np.argsort(a[loc])[::-1][:2]])
+    np.testing.assert_allclose(T0 + top / FS, delays, atol=1.01 / FS)
