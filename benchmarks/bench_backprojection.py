@@ -90,14 +90,15 @@ def main() -> None:
 
     dev = torch.device(args.device)
     gpu = dev.type == "cuda"
-    vb = args.voxel_block or (262144 if gpu else 16384)
-    pc = args.ping_chunk or (512 if gpu else 256)
+    vb, pc = args.voxel_block, args.ping_chunk  # None: the library's per-device defaults
     carrier = None if args.no_phase else FC
     print(f"machine: {platform.machine()} {os.cpu_count()} CPUs, torch {torch.__version__}, "
           f"threads {torch.get_num_threads()}, device {dev}"
           + (f" ({torch.cuda.get_device_name(dev)})" if gpu else ""))
     print(f"mode: {'passband, no phase term' if carrier is None else 'baseband + carrier phase term'}, "
-          f"linear interpolation, float32; voxel_block={vb}, ping_chunk={pc}")
+          f"linear interpolation, float32; blocks (voxels, pings): eager "
+          f"{BackprojectionConfig(voxel_block=vb, ping_chunk=pc).blocks(dev, False)}, compiled "
+          f"{BackprojectionConfig(voxel_block=vb, ping_chunk=pc).blocks(dev, True)}")
 
     g = args.grid
     sig, tx, rx, t0, pts = case(args.pings, (g, g, g), args.samples)
@@ -116,8 +117,9 @@ def main() -> None:
     rows.append(("shsas eager", dt, out))
     comp = BackprojectionConfig(backend="compiled", voxel_block=vb, ping_chunk=pc)
     t = time.perf_counter()
-    backproject(sig[:pc], tx[:pc], rx[:pc], t0[:pc], FS, C, pts[:vb], carrier_hz=carrier, config=comp,
-                device=dev)
+    cvb, cpc = comp.blocks(dev, True)
+    backproject(sig[:cpc], tx[:cpc], rx[:cpc], t0[:cpc], FS, C, pts[:cvb], carrier_hz=carrier,
+                config=comp, device=dev)
     warm = time.perf_counter() - t
     print(f"compile warm-up (first call, not counted below): {warm:.1f} s")
     dt, out = timed(lambda: backproject(sig, tx, rx, t0, FS, C, pts, carrier_hz=carrier, config=comp,

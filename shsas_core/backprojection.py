@@ -49,8 +49,20 @@ class BackprojectionConfig(BaseModel):
         "restore the phase per voxel: far more accurate linear interpolation at low fs/f_c")
     use_beams: bool = Field(True, description="apply TX/RX beam cones when the survey has them")
     crop: bool = Field(True, description="drop samples outside the grid's range window first")
-    voxel_block: int = Field(16384, ge=1, le=1 << 24, description="voxels per kernel call")
-    ping_chunk: int = Field(256, ge=1, le=1 << 20, description="pings per kernel call")
+    voxel_block: int | None = Field(
+        None, ge=1, le=1 << 24, description="voxels per kernel call (None: 16384, or 262144 for "
+        "the compiled kernel on CUDA)")
+    ping_chunk: int | None = Field(
+        None, ge=1, le=1 << 20, description="pings per kernel call (None: 256, or 1024 for the "
+        "compiled kernel on CUDA)")
+
+    def blocks(self, device: torch.device, compiled: bool) -> tuple[int, int]:
+        """(voxel_block, ping_chunk) for a device. The compiled kernel holds no (voxels x pings)
+        temporaries, so on a GPU it takes large blocks (fewer launches); the eager kernel
+        materialises ~30 of them and keeps CPU-sized blocks everywhere (about 0.5 GB)."""
+        big = compiled and device.type == "cuda"
+        return (self.voxel_block or (262_144 if big else 16_384),
+                self.ping_chunk or (1024 if big else 256))
     backend: Literal["auto", "compiled", "eager"] = Field(
         "auto", description="compiled = torch.compile kernel; auto compiles for large problems "
         "(>= 5e7 voxel-pings) and falls back to eager if compilation is unavailable")
@@ -300,9 +312,13 @@ def backproject(
     k = torch.tensor(fs_u / c, **f32)
     phase_k = torch.tensor(2 * math.pi * (carrier_hz or 0.0) / c, **f32)
 
-    nb = min(cfg.voxel_block, v_total)
-    pc = min(cfg.ping_chunk, n)
-    out = np.zeros(v_total, np.complex128)
+    vb, pcs = cfg.blocks(dev, compiled=backend != "eager")
+    nb = min(vb, v_total)
+    pc = min(pcs, n)
+    # float64 accumulators on the device: no host sync per block, no float32 drift over
+    # tens of thousands of pings
+    acc_re = torch.zeros(v_total, dtype=torch.float64, device=dev)
+    acc_im = torch.zeros(v_total, dtype=torch.float64, device=dev)
     chunks = [(a, min(a + pc, n)) for a in range(0, n, pc)]
     total_steps = len(chunks) * math.ceil(v_total / nb)
     step = 0
@@ -337,10 +353,11 @@ def backproject(
             p = pts_all[:, v0 : v0 + nb]
             re, im = kernel(p[0], p[1], p[2], tx_t, rx_t, a_t, flat, k, phase_k, txd_t, rxd_t,
                             nearest, with_phase, with_beams)
-            out[v0:v1] += torch.complex(re, im)[: v1 - v0].cpu().numpy()
+            acc_re[v0:v1] += re[: v1 - v0]
+            acc_im[v0:v1] += im[: v1 - v0]
             step += 1
             progress(step / total_steps, "backprojection", {})
-    return out.astype(np.complex64)
+    return torch.complex(acc_re, acc_im).cpu().numpy().astype(np.complex64)
 
 
 def default_signals(survey: Survey) -> tuple[np.ndarray, str]:
