@@ -48,7 +48,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
 from .progress import ProgressFn, StopFn, check_stop, no_progress
-from .render.renderer import PingGeometry, RenderConfig, ping_geometry, render_samples
+from .render.renderer import (
+    PingGeometry,
+    RenderConfig,
+    passband_factor,
+    ping_geometry,
+    render_samples,
+)
 from .render.sampling import bin_radii, cone_directions, sample_bins, scene_range_window
 
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -164,6 +170,9 @@ def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None,
         raise ShsasError("fit: signals must be complex (analytic or pulse-deconvolved s_PD)")
     if not np.all(np.isfinite(s)):
         raise ShsasError("fit: signals contain NaN or inf")
+    factor = passband_factor(survey)
+    if factor is not None:  # baseband survey: train on the analytic passband equivalent
+        s = s * factor
     radii = bin_radii(survey.t0, survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
     box = survey.meta.scene_box
     r_lo, r_hi = scene_range_window(survey.tx, survey.rx, box.min, box.max)
