@@ -198,6 +198,22 @@ def test_occluder_backends_agree():
     assert np.mean(a == b) > 0.99  # float32 Embree vs float64 numpy may differ on grazing rays
 
 
+def test_pure_trimesh_fallback_gives_the_same_survey():
+    if not trimesh.ray.has_embree:
+        pytest.skip("embreex not installed")
+    cfg = SimulationConfig(trajectory=TrajectoryConfig(heights=1, angles=3, height_min=0.2),
+                           snr_db=None, scattering=ScatteringConfig(spacing_fraction=0.5))
+    mesh = shape("torus")
+    a = simulate(mesh, cfg)
+    b = simulate(mesh, cfg.model_copy(update={"scattering": cfg.scattering.model_copy(
+        update={"ray_backend": "triangle"})}))
+    assert b.meta.attrs["ray_backend"] == "triangle"
+    na, nb = a.meta.attrs["visible_contributions"], b.meta.attrs["visible_contributions"]
+    assert abs(na - nb) <= 0.002 * na
+    peak = np.abs(a.samples).max()
+    assert np.abs(a.samples - b.samples).max() < 0.02 * peak
+
+
 def test_self_shadowing_on_closed_meshes():
     """Two-sided scattering plus shadow rays must give back the one-sided result on a closed
     mesh: the hidden half (facing the sensor from inside) is shadowed by the near half."""
