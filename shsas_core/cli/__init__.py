@@ -52,6 +52,12 @@ def main(argv: list[str] | None = None) -> int:
     except Cancelled:
         print(f"shsas {args.command}: cancelled", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # `shsas info --json FILE | head`: the reader left; not an error of ours.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print(f"shsas {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -13,6 +13,11 @@ _EPILOG = """examples:
 The model, the surface sampling rule and the SNR definition are in docs/simulation.md."""
 
 
+#: config fields whose command-line option has another name
+_OPTION_NAMES = {"tx_beamwidth_deg": "tx-beamwidth", "rx_beamwidth_deg": "rx-beamwidth",
+                 "specular_weight": "specular", "snr_db": "snr", "kind": "trajectory"}
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="simulate a SAS survey of a mesh or built-in shape (with ground truth)",
@@ -69,6 +74,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--spreading", action="store_true", help="two-way spherical spreading loss")
     g.add_argument("--random-phase", action="store_true", help="random phase per point (speckle)")
     g.add_argument("--random-amplitude", action="store_true", help="Rayleigh amplitude per point")
+    g.add_argument("--tx-beamwidth", type=float, default=None, metavar="DEG",
+                   help="full TX cone angle, degrees (default: omnidirectional); beams point at "
+                   "the scene centre, broadside on linear passes")
+    g.add_argument("--rx-beamwidth", type=float, default=None, metavar="DEG",
+                   help="full RX cone angle, degrees (default: omnidirectional)")
     g.add_argument("--two-sided", action="store_true", help="surfaces scatter from both sides")
     g.add_argument("--no-occlusion", action="store_true", help="skip shadow rays (faster, wrong)")
     g.add_argument("--spacing-fraction", type=float, default=0.25,
@@ -112,7 +122,8 @@ def build_config(args: argparse.Namespace):
             specular_exponent=args.specular_exponent, spreading=args.spreading,
             random_phase=args.random_phase, random_amplitude=args.random_amplitude,
             two_sided=args.two_sided, occlusion=not args.no_occlusion,
-            spacing_fraction=args.spacing_fraction)
+            spacing_fraction=args.spacing_fraction, tx_beamwidth_deg=args.tx_beamwidth,
+            rx_beamwidth_deg=args.rx_beamwidth)
         box = None
         if args.scene_box is not None:
             try:
@@ -129,7 +140,8 @@ def build_config(args: argparse.Namespace):
         msg = err["msg"].removeprefix("Value error, ")
         if not err["loc"]:  # a check across several options
             raise ShsasError(f"invalid options: {msg}"[:300]) from None
-        loc = "--" + "-".join(str(p) for p in err["loc"]).replace("_", "-")
+        name = str(err["loc"][-1])
+        loc = "--" + _OPTION_NAMES.get(name, name).replace("_", "-")
         raise ShsasError(f"{loc}: {msg} (got {err.get('input')!r})"[:300]) from None
 
 

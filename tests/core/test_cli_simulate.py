@@ -35,9 +35,11 @@ def test_simulate_mesh_file_and_linear(tmp_path):
     shape("cube").export(mesh)
     out = tmp_path / "lin.h5"
     assert main(["simulate", "--mesh", str(mesh), "--trajectory", "linear", "--heights", "1",
-                 "--track-pings", "8", "--no-noise", "--quiet", "--out", str(out)]) == 0
+                 "--track-pings", "8", "--no-noise", "--tx-beamwidth", "60", "--rx-beamwidth", "90",
+                 "--quiet", "--out", str(out)]) == 0
     s = read_survey(out)
     assert s.num_pings == 8 and np.allclose(s.tx[:, 1], -0.85)
+    assert s.meta.tx_beamwidth_deg == 60 and s.meta.rx_beamwidth_deg == 90
 
 
 def test_simulate_points_file(tmp_path):
@@ -62,6 +64,7 @@ def test_simulate_points_file(tmp_path):
     (["--shape", "cube", "--fs", "50000"], "twice the top chirp"),
     (["--mesh", "/nonexistent/x.obj"], "not found"),
     (["--points", "/nonexistent/x.npy"], "not found"),
+    (["--shape", "cube", "--tx-beamwidth", "-5"], "--tx-beamwidth"),
     (["--shape", "cube", "--scene-box", "0", "0", "0", "-1", "1", "1"], "--scene-box"),
 ])
 def test_bad_options_one_line_exit_2(tmp_path, capsys, argv, needle):
