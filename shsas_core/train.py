@@ -153,8 +153,8 @@ class _Data:
     """Training signals and per-ping range axes on the CPU (moved per batch)."""
 
     signals: torch.Tensor  # (N, T) complex64
-    magnitude: torch.Tensor  # (N, T) float64 |s|
-    radii: np.ndarray  # (N, T) float64 two-way path per sample, m
+    magnitude: torch.Tensor  # (N, T) float32 |s|
+    t0: np.ndarray  # (N,) s, first-sample times (radii are c (t0 + k / fs), made per batch)
     valid: torch.Tensor  # (N, T) bool, inside the scene's range window (and beyond the baseline)
     pings: np.ndarray  # (n_train,) indices of the training pings
     energy: float  # expected |s|^2 of a drawn bin (see _prepare)
@@ -198,8 +198,8 @@ def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None,
     energy = float(np.mean((p * mag2).sum(axis=1)))
     if not energy > 0:
         raise ShsasError("fit: the signals are all zero inside the scene's range window")
-    return _Data(torch.from_numpy(s.astype(np.complex64)), torch.from_numpy(np.abs(s).astype(np.float64)),
-                 radii, torch.from_numpy(valid), pings, energy)
+    return _Data(torch.from_numpy(s.astype(np.complex64)), torch.from_numpy(np.abs(s).astype(np.float32)),
+                 np.asarray(survey.t0, dtype=np.float64), torch.from_numpy(valid), pings, energy)
 
 
 def _generator(seed: int, iteration: int, stream: int = 0) -> torch.Generator:
@@ -217,7 +217,9 @@ def _batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, devic
     idx, _pdf = sample_bins(data.magnitude[pings], data.valid[pings], cfg.num_bins, cfg.uniform_fraction, it_gen)
     rows = torch.as_tensor(pings)[:, None]
     target = data.signals[rows, idx].to(device)
-    radii = torch.as_tensor(np.take_along_axis(data.radii[pings], idx.numpy(), axis=1), dtype=dtype, device=device)
+    meta = survey.meta
+    r = meta.sound_speed * (data.t0[pings][:, None] + idx.numpy() / meta.fs)  # same formula as bin_radii
+    radii = torch.as_tensor(r, dtype=dtype, device=device)
     geom = ping_geometry(survey, pings, device, dtype, cfg.render.beamwidth_deg)
     return pings, geom, radii, target
 
