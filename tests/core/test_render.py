@@ -292,3 +292,31 @@ def test_baseband_surveys_render_in_their_own_convention():
     t = pas.t0[1] + np.arange(pas.num_samples) / pas.meta.fs
     assert np.abs(a).max() > 0
     assert np.allclose(b[0], a[0] * np.exp(-2j * np.pi * 20e3 * t), rtol=1e-4, atol=1e-6 * np.abs(a).max())
+
+
+def test_renderer_gradcheck_with_a_tiny_shfield_float64():
+    """Gradients of the rendered bins w.r.t. the SH field's output layer (through scattering,
+    density/transmittance and the normals of the Lambertian term) match finite differences."""
+    from shsas_core.fields import FieldConfig, HashEncodingConfig, SHField
+
+    box = SceneBox(min=(-0.1, -0.1, 0.0), max=(0.1, 0.1, 0.2))
+    torch.manual_seed(0)
+    enc = HashEncodingConfig(n_levels=2, log2_table_size=6, base_resolution=4, finest_resolution=8)
+    f = SHField(FieldConfig(sh_degree=1, encoding=enc, hidden=8, scene_box=box)).double()
+    with torch.no_grad():
+        f.encoding.table.uniform_(-0.3, 0.3)
+    tx = torch.tensor([[0.5, 0.05, 0.12]], dtype=D)
+    rx = tx + torch.tensor([[0.01, 0.0, -0.03]], dtype=D)
+    geom = _geom(tx, rx, torch.tensor([[0.0, 0.0, 0.1]], dtype=D))
+    radii = torch.tensor([[0.9, 0.95, 1.0, 1.05]], dtype=D)
+    dirs, omega = cone_directions(geom.axis, geom.half_angle, 6, torch.Generator().manual_seed(0))
+    last = f.linears[-1]
+    inp = last.weight.detach().clone().requires_grad_(True)
+    del last.weight  # use a plain tensor as the weight, so gradcheck can perturb it
+
+    def fn(weight):
+        last.weight = weight
+        return render_samples(f, geom, radii, dirs, omega, RenderConfig(num_rays=6), create_graph=True)["signal"]
+
+    assert fn(inp).abs().min() > 0
+    assert torch.autograd.gradcheck(fn, (inp,), eps=1e-6, atol=1e-6, rtol=1e-4)
