@@ -95,13 +95,16 @@ def test_fast_matches_eager_input_grads() -> None:
 
 def test_outside_box_is_empty() -> None:
     for field in _pair(3):
-        x = torch.tensor([[0.3, 0.0, 0.1], [0.0, 0.0, -0.01], [0.0, 0.5, 0.3], [0.0, 0.0, 0.1]],
-                         dtype=torch.float64)
-        out = field(x, _dirs(4))
-        assert torch.all(out["density"][:3] == 0) and out["density"][3] > 0
-        assert torch.all(out["scattering"][:3] == 0)
-        assert torch.all(out["normals"][:3] == 0)
-        assert torch.all(field.coefficients(x)[:3] == 0)
+        nan = float("nan")
+        x = torch.tensor([[0.3, 0.0, 0.1], [0.0, 0.0, -0.01], [0.0, 0.5, 0.3], [nan, 0.0, 0.1],
+                          [-1e30, 0.0, 0.1], [0.0, 0.0, 0.1]], dtype=torch.float64)
+        out = field(x, _dirs(6))
+        assert torch.all(out["density"][:5] == 0) and out["density"][5] > 0
+        assert torch.all(out["scattering"][:5] == 0)
+        assert torch.all(out["normals"][:5] == 0)
+        assert torch.all(field.coefficients(x)[:5] == 0)
+        empty = field(torch.zeros(0, 3, dtype=torch.float64), torch.zeros(0, 3, dtype=torch.float64))
+        assert empty["density"].shape == (0,) and empty["normals"].shape == (0, 3)
 
 
 def test_isotropic_l0() -> None:
@@ -242,6 +245,18 @@ def test_bad_input() -> None:
         FieldConfig(zeta=0)
 
 
+def test_config_json_and_state_dict_round_trip() -> None:
+    # what a checkpoint stores: the config as JSON and the state dict
+    field, _ = _pair(2, zeta=1.5)
+    cfg = FieldConfig.model_validate_json(field.cfg.model_dump_json())
+    assert cfg == field.cfg
+    again = SHField(cfg).double()
+    again.load_state_dict(field.state_dict())
+    x, d = _inside(20), _dirs(20)
+    for k, v in field(x, d).items():
+        torch.testing.assert_close(again(x, d)[k], v, rtol=0, atol=0)
+
+
 @pytest.mark.gpu
 def test_fast_matches_eager_on_cuda() -> None:
     eager, fast = (f.float().cuda() for f in _pair(3))
@@ -256,7 +271,7 @@ def test_fast_matches_eager_on_cuda() -> None:
 @pytest.mark.slow
 def test_compiled_kernels_match_fused_eager() -> None:
     # torch.compile of the encoding kernels (tens of seconds on 2 cores): same values and grads
-    eager, fast = _pair(3)
+    _, fast = _pair(3)
     comp = SHField(FieldConfig(sh_degree=3, encoding=ENC, scene_box=BOX, fast=True, compile=True)).double()
     comp.load_state_dict(fast.state_dict())
     for p in (300, 257):  # a second size must not need a new compile to be right
