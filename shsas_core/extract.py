@@ -143,7 +143,7 @@ def mesh(volume: Volume, tau: float, close_boundary: bool = True):
 
     _check_tau(tau)
     norm = volume.normalized()
-    if norm.size == 0 or float(norm.max()) < tau or min(norm.shape) < 2 and not close_boundary:
+    if norm.size == 0 or float(norm.max()) < tau or (min(norm.shape) < 2 and not close_boundary):
         return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
     pad = 1 if close_boundary else 0
     if pad:
@@ -151,7 +151,7 @@ def mesh(volume: Volume, tau: float, close_boundary: bool = True):
     if float(norm.min()) > tau:  # whole box above τ and no padding: no crossing
         return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
     d = volume.grid.spacing
-    verts, faces, normals, _ = marching_cubes(norm, level=tau, spacing=tuple(float(s) for s in d),
+    verts, faces, _normals, _ = marching_cubes(norm, level=tau, spacing=tuple(float(s) for s in d),
                                               allow_degenerate=False)
     origin = np.asarray(volume.grid.box_min) + (0.5 - pad) * d
     verts = verts.astype(np.float64) + origin

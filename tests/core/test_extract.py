@@ -85,7 +85,7 @@ def test_threshold_rules():
 def test_empty_volume_gives_empty_outputs_and_sweep():
     g, vol = ramp_volume()
     empty = Volume(g, np.zeros(g.shape, np.float32))
-    tau, pc, m = extract(empty)
+    _, pc, m = extract(empty)
     assert len(pc) == 0 and len(m.faces) == 0
     rows = threshold_sweep(vol, [0.2, 0.5, 0.8], score=lambda pc, m: {"n": float(len(pc))})
     assert [r["tau"] for r in rows] == [0.2, 0.5, 0.8]

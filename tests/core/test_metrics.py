@@ -49,7 +49,7 @@ def test_chamfer_and_fscore_match_brute_force():
 def test_chamfer_of_shifted_sets_is_the_shift():
     # every point's nearest neighbour is its own shifted copy when the shift is small vs spacing
     g = np.stack(np.meshgrid(*[np.arange(5) * 0.1] * 3, indexing="ij"), -1).reshape(-1, 3)
-    c = chamfer(g, g + [0.01, 0, 0])
+    c = chamfer(g, g + np.array([0.01, 0, 0]))
     assert c["chamfer_l2"] == pytest.approx(2 * 0.01**2)
     assert c["chamfer_l1"] == pytest.approx(0.01)
     assert chamfer(np.zeros((0, 3)), g)["chamfer_l2"] == math.inf
