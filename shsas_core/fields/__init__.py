@@ -1,0 +1,34 @@
+"""Neural scattering field of SH-SAS: hash encoding, real SH basis, and the SH field.
+
+Entry points: :class:`HashEncoding` / :class:`HashEncodingConfig` (presets ``CPU_ENCODING``,
+``PAPER_GPU_ENCODING``), :func:`sh_basis`, :class:`SHField` / :class:`FieldConfig`.
+"""
+
+from .encoding import (
+    CPU_ENCODING,
+    PAPER_GPU_ENCODING,
+    HashEncoding,
+    HashEncodingConfig,
+    encode_fused,
+    encode_reference,
+    encoding_preset,
+)
+from .field import FieldConfig, SHField, normals_by_autograd, safe_normalize
+from .sh import num_coefficients, sh_basis, sh_index
+
+__all__ = [
+    "CPU_ENCODING",
+    "PAPER_GPU_ENCODING",
+    "FieldConfig",
+    "HashEncoding",
+    "HashEncodingConfig",
+    "SHField",
+    "encode_fused",
+    "encode_reference",
+    "encoding_preset",
+    "normals_by_autograd",
+    "num_coefficients",
+    "safe_normalize",
+    "sh_basis",
+    "sh_index",
+]
