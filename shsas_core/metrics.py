@@ -286,17 +286,11 @@ def score_reconstruction(points: np.ndarray | None, mesh: Any | None, gt: Ground
 
 
 def signal_errors(pred: np.ndarray, target: np.ndarray) -> dict[str, float]:
-    """Novel-view transient errors: L1 and MSE on the real part, the imaginary part and the
-    magnitude, averaged over every sample of every ping (arrays of equal shape, complex)."""
-    p, t = np.asarray(pred), np.asarray(target)
-    if p.shape != t.shape:
-        raise ShsasError(f"metrics: predicted signals {p.shape} and targets {t.shape} differ in shape")
-    out = {}
-    for name, fn in (("real", np.real), ("imag", np.imag), ("mag", np.abs)):
-        d = fn(p).astype(np.float64) - fn(t).astype(np.float64)
-        out[f"l1_{name}"] = float(np.mean(np.abs(d)))
-        out[f"mse_{name}"] = float(np.mean(d**2))
-    return out
+    """Novel-view transient errors (L1 and MSE of real, imaginary and magnitude): the render
+    package's implementation, re-exported so every metric is importable from here."""
+    from .render import signal_errors as _render_signal_errors
+
+    return _render_signal_errors(pred, target)
 
 
 def finite_or_none(metrics: Mapping[str, float]) -> dict[str, float | None]:

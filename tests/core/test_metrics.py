@@ -163,6 +163,6 @@ def test_signal_errors():
     e = signal_errors(p, t)
     assert e["l1_real"] == pytest.approx(1 / 3)
     assert e["l1_imag"] == pytest.approx(1 / 3)
-    assert e["mse_mag"] == pytest.approx(((1 - math.sqrt(2)) ** 2 + 1) / 3)
+    assert e["mse_abs"] == pytest.approx(((1 - math.sqrt(2)) ** 2 + 1) / 3)
     with pytest.raises(ShsasError):
         signal_errors(p[:, :2], t)
