@@ -30,7 +30,7 @@ def test_mesh_ply_roundtrip_with_trimesh(tmp_path, sphere):
     back = trimesh.load(p, process=False)
     np.testing.assert_array_equal(back.vertices, sphere.vertices)  # float64: exact
     np.testing.assert_array_equal(back.faces, sphere.faces)
-    assert not list(tmp_path.glob(".*tmp*"))
+    assert not list(tmp_path.glob(".*.tmp"))
 
 
 def test_mesh_glb_roundtrip_and_offset(tmp_path, sphere):
