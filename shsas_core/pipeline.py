@@ -141,11 +141,11 @@ def run(
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     device = resolve_device(spec.device)
     t = time.perf_counter()
     survey = load_input(survey)
     timings["load"] = time.perf_counter() - t
+    out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
     ckpt = out / "checkpoints"
     _check_resume_key(ckpt, spec, survey)
     check_stop(should_stop)
