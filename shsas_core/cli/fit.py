@@ -1,0 +1,118 @@
+"""`shsas fit SURVEY --method shsas|reed --out DIR`: train a neural scattering field on a survey."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ShsasError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fit", help="train an SH-SAS (or Reed et al., L=0) neural field on a survey",
+        description="Train a neural scattering field by analysis-by-synthesis on the survey's "
+        "pulse-deconvolved signals (docs/neural.md). Writes OUT/checkpoint.pt (every "
+        "--checkpoint-every iterations and at the end), OUT/field.pt (weights + configs) and "
+        "OUT/loss_history.json. Re-running with the same OUT resumes from the checkpoint and "
+        "gives the same result as an uninterrupted run; a larger --iters continues training.")
+    p.add_argument("survey", help="survey file (canonical .h5 or any format `shsas convert` reads)")
+    p.add_argument("--method", choices=["shsas", "reed"], default="shsas",
+                   help="shsas: spherical-harmonic field of degree --sh-degree; reed: isotropic (L=0)")
+    p.add_argument("--sh-degree", type=int, default=3, choices=[0, 1, 2, 3], help="SH degree L (shsas only)")
+    p.add_argument("--iters", type=int, default=1500, help="training iterations (paper: 26k-100k on GPU)")
+    p.add_argument("--out", required=True, help="output directory (created; resumed if it has a checkpoint)")
+    p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
+    p.add_argument("--bins", type=int, default=64, help="range bins per ping per iteration (paper: 200)")
+    p.add_argument("--rays", type=int, default=1024, help="TX rays per ping (paper: ~4800)")
+    p.add_argument("--pings-per-batch", type=int, default=1, help="pings rendered per iteration")
+    p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints")
+    p.add_argument("--encoding", choices=["cpu", "paper_gpu"], default=None,
+                   help="hash-grid preset (default: paper_gpu on CUDA, cpu otherwise)")
+    p.add_argument("--beamwidth", type=float, default=None,
+                   help="full TX cone angle, degrees (default: survey meta, else cover the scene box)")
+    p.add_argument("--signals", choices=["auto", "deconvolved", "wiener", "analytic"], default="auto",
+                   help="training target: 'deconvolved' = the file's extras/deconvolved; 'wiener' = "
+                   "pulse deconvolution now; 'analytic' = analytic signal of the samples; 'auto' = "
+                   "deconvolved if stored, else wiener")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _signals(survey, kind: str, device: str) -> tuple[np.ndarray, str]:
+    if kind in ("auto", "deconvolved") and "deconvolved" in survey.extras:
+        return np.asarray(survey.extras["deconvolved"]), "deconvolved (stored)"
+    if kind == "deconvolved":
+        raise ShsasError("fit: the survey has no extras/deconvolved (fix: use --signals wiener or run "
+                         "the deconvolution first)")
+    if kind in ("auto", "wiener"):
+        try:
+            from ..deconv import DeconvConfig, deconvolve
+        except ImportError:
+            if kind == "wiener":
+                raise ShsasError("fit: pulse deconvolution is not available in this build "
+                                 "(fix: use --signals analytic)") from None
+        else:
+            from ..device import resolve_device
+
+            return np.asarray(deconvolve(survey, DeconvConfig(), resolve_device(device))), "wiener"
+    if survey.samples is None:
+        raise ShsasError("fit: the survey has no samples")
+    if np.iscomplexobj(survey.samples):
+        return survey.samples, "samples (complex)"
+    from scipy.signal import hilbert
+
+    return hilbert(survey.samples, axis=1).astype(np.complex64), "analytic"
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from ..device import resolve_device
+    from ..fields import FieldConfig, SHField, encoding_preset
+    from ..importers import load_survey
+    from ..progress import TqdmProgress
+    from ..render import RenderConfig
+    from ..train import TrainConfig, fit
+
+    if args.iters < 1:
+        raise ShsasError(f"--iters: must be >= 1, got {args.iters}")
+    device = resolve_device(args.device)
+    survey = load_survey(args.survey)
+    degree = 0 if args.method == "reed" else args.sh_degree
+    preset = args.encoding or ("paper_gpu" if device.type == "cuda" else "cpu")
+    try:
+        fcfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), scene_box=survey.meta.scene_box)
+        tcfg = TrainConfig(iters=args.iters, lr=args.lr, num_bins=args.bins, num_rays=args.rays,
+                           pings_per_batch=args.pings_per_batch, seed=args.seed,
+                           checkpoint_every=args.checkpoint_every, device=str(device),
+                           render=RenderConfig(beamwidth_deg=args.beamwidth))
+    except ValueError as exc:  # pydantic: one line naming the option
+        raise ShsasError(f"fit: invalid option: {str(exc).splitlines()[-2].strip()}") from None
+    signals, source = _signals(survey, args.signals, str(device))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(args.seed)  # field initialisation
+    field = SHField(fcfg)
+    bar = TqdmProgress(disable=args.no_progress)
+    try:
+        res = fit(field, survey, signals, tcfg, progress=bar, checkpoint_dir=out, stage=f"fit:{args.method}")
+    finally:
+        bar.close()
+    meta = {"method": args.method, "sh_degree": degree, "signals": source, "survey": str(args.survey),
+            "field_config": fcfg.model_dump(mode="json"), "train_config": tcfg.model_dump(mode="json")}
+    tmp = out / "field.pt.tmp"
+    torch.save({"state_dict": field.state_dict(), "amplitude": res.amplitude, **meta}, tmp)
+    tmp.replace(out / "field.pt")
+    (out / "loss_history.json").write_text(json.dumps({**res.to_json(), **meta}, indent=1))
+    tail = res.data_loss_history[-min(50, len(res.data_loss_history)):]
+    print(f"fit {args.method} (L={degree}) on {survey.num_pings} pings, signals: {source}: "
+          f"{res.iterations} iterations ({res.start_iteration} resumed), {res.iters_per_s:.2f} it/s, "
+          f"final data loss {np.mean(tail):.4g} -> {out}", file=sys.stderr)
+    return 0

@@ -1,0 +1,421 @@
+"""Analysis-by-synthesis training of a scattering field on pulse-deconvolved pings (paper §4.4).
+
+Each iteration picks ``pings_per_batch`` training pings, importance-samples ``num_bins`` range bins
+per ping (∝ |s_PD| plus a uniform share), renders them with ``num_rays`` TX rays
+(:mod:`shsas_core.render`), and takes one Adam step (lr 1e-3) on the composite loss
+
+    L = λ1 L_ToF + λ2 L_sparse + λ3 TV(ρ) + λ4 TV(|σ|) + λ5 TV(∠σ)
+
+* ``L_ToF = mean_k |A ŝ_k - s_k|^2 / E`` — mean squared complex error (real² + imag²) of the
+  rendered bins, divided by the constant ``E``, the mean |s|² of the in-scene bins of the training
+  pings; 1.0 is what predicting zeros scores, so the value reads as a relative residual.
+* ``L_sparse = mean ρ(x)`` over the valid samples (L1: ρ >= 0).
+* TV terms compare the field at ``R`` random valid samples ``x`` and at ``x + δ``, ``δ`` a random
+  direction of length ``tv_delta`` (default: 1/128 of the scene-box diagonal):
+  ``TV(ρ) = mean |ρ(x) - ρ(x+δ)|``, ``TV(|σ|) = mean ||σ(x)| - |σ(x+δ)||``,
+  ``TV(∠σ) = mean |e^{i∠σ(x)} - e^{i∠σ(x+δ)}|`` (chord distance on the unit circle: ≈ |Δφ|
+  for small differences, no 2π wrap, bounded gradient).
+
+``A = exp(log_amplitude)`` is one learnable real scale, initialised in closed form before the
+first step as ``‖s‖ / ‖ŝ‖`` on a seeded batch, so the field does not have to grow its output by
+orders of magnitude to meet the data's units. Default weights follow the paper's simulated
+setting (regularisers off: λ1 = 1, λ2..λ5 = 0); :data:`AIRSAS_WEIGHTS` keeps the ratios of the
+public AirSAS configuration.
+
+Determinism and resume: every random draw of iteration ``i`` comes from generators seeded with
+``(seed, i)``, so the draws do not depend on history; a checkpoint (field, amplitude, optimiser,
+iteration, loss history and the global torch/numpy/python RNG states, written atomically)
+therefore resumes to the same loss curve as an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import random
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from .device import resolve_device
+from .errors import Cancelled, ShsasError
+from .progress import ProgressFn, StopFn, check_stop, no_progress
+from .render.renderer import PingGeometry, RenderConfig, ping_geometry, render_samples
+from .render.sampling import bin_radii, cone_directions, sample_bins, scene_range_window
+
+CHECKPOINT_NAME = "checkpoint.pt"
+
+
+class LossWeights(BaseModel):
+    """λ1..λ5 of the composite loss (see the module docstring)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    tof: float = Field(1.0, ge=0, description="λ1, ToF data term")
+    sparsity: float = Field(0.0, ge=0, description="λ2, L1 of density")
+    tv_density: float = Field(0.0, ge=0, description="λ3, TV of density")
+    tv_scatter: float = Field(0.0, ge=0, description="λ4, TV of |σ|")
+    tv_phase: float = Field(0.0, ge=0, description="λ5, TV of ∠σ")
+
+    @property
+    def any_tv(self) -> bool:
+        return self.tv_density > 0 or self.tv_scatter > 0 or self.tv_phase > 0
+
+
+#: Ratios of the public AirSAS configuration of the paper (sparsity 1e1, smooth 5e1, phase 1e-1
+#: relative to a data term that was a plain mean squared error); a starting point for real data.
+AIRSAS_WEIGHTS = LossWeights(tof=1.0, sparsity=1e-3, tv_density=0.0, tv_scatter=5e-3, tv_phase=1e-5)
+
+
+class TrainConfig(BaseModel):
+    """Training options. Defaults run on a 2-core CPU; the paper used 200 bins x ~4800 rays."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    iters: int = Field(1500, ge=1, le=1_000_000)
+    lr: float = Field(1e-3, gt=0, le=1.0)
+    num_bins: int = Field(64, ge=1, le=65536)
+    num_rays: int = Field(1024, ge=1, le=1_000_000)
+    pings_per_batch: int = Field(1, ge=1, le=4096)
+    uniform_fraction: float = Field(0.1, ge=0, le=1, description="uniform share of bin sampling")
+    weights: LossWeights = LossWeights()
+    tv_delta: float | None = Field(None, gt=0, description="TV offset length, m; None: box diagonal/128")
+    tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms")
+    reg_start: int = Field(0, ge=0, description="iteration from which λ2..λ5 apply")
+    learn_amplitude: bool = Field(True, description="learn the global scale A (else fixed at its init)")
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    progressive_sh_every: int | None = Field(
+        None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
+    checkpoint_every: int = Field(500, ge=1)
+    device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
+    render: RenderConfig = Field(default_factory=RenderConfig,
+                                 description="num_bins/num_rays here are overridden by the fields above")
+
+    def render_config(self) -> RenderConfig:
+        return self.render.model_copy(update={"num_bins": self.num_bins, "num_rays": self.num_rays,
+                                              "uniform_fraction": self.uniform_fraction})
+
+
+@dataclasses.dataclass
+class FitResult:
+    """What :func:`fit` returns.
+
+    Attributes:
+        loss_history: total loss per iteration, from iteration 0 (resumed runs include the
+            iterations before the resume).
+        data_loss_history: the ToF term (relative, see module docstring) per iteration.
+        iters_per_s: iterations per second of this call (excludes set-up).
+        iterations: iterations completed in total. start_iteration: where this call started.
+        amplitude: fitted global scale A (pass to ``render_transients``).
+        signal_energy: ``E``, the mean |s|² used to normalise the data term.
+        checkpoint_path: last checkpoint written, if any. elapsed_s: wall time of this call.
+    """
+
+    loss_history: list[float]
+    data_loss_history: list[float]
+    iters_per_s: float
+    iterations: int
+    start_iteration: int
+    amplitude: float
+    signal_energy: float
+    checkpoint_path: str | None
+    elapsed_s: float
+
+    def to_json(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+class _Amplitude(torch.nn.Module):
+    def __init__(self) -> None:
+        super().__init__()
+        self.log_amplitude = torch.nn.Parameter(torch.zeros((), dtype=torch.float64))
+
+    def forward(self) -> torch.Tensor:
+        return torch.exp(self.log_amplitude)
+
+
+@dataclasses.dataclass
+class _Data:
+    """Training signals and per-ping range axes on the CPU (moved per batch)."""
+
+    signals: torch.Tensor  # (N, T) complex64
+    magnitude: torch.Tensor  # (N, T) float64 |s|
+    radii: np.ndarray  # (N, T) float64 two-way path per sample, m
+    valid: torch.Tensor  # (N, T) bool, inside the scene's range window (and beyond the baseline)
+    pings: np.ndarray  # (n_train,) indices of the training pings
+    energy: float  # mean |s|^2 over valid bins of training pings
+
+
+def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None) -> _Data:
+    s = np.asarray(signals)
+    if s.ndim != 2 or s.shape != (survey.num_pings, survey.num_samples):
+        raise ShsasError(f"fit: signals must have shape (pings={survey.num_pings}, samples="
+                         f"{survey.num_samples}), got {s.shape}")
+    if not np.iscomplexobj(s):
+        raise ShsasError("fit: signals must be complex (analytic or pulse-deconvolved s_PD)")
+    if not np.all(np.isfinite(s)):
+        raise ShsasError("fit: signals contain NaN or inf")
+    radii = bin_radii(survey.t0, survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
+    box = survey.meta.scene_box
+    r_lo, r_hi = scene_range_window(survey.tx, survey.rx, box.min, box.max)
+    base = np.linalg.norm(survey.tx - survey.rx, axis=1)
+    valid = (radii >= r_lo[:, None]) & (radii <= r_hi[:, None]) & (radii > base[:, None])
+    pings = (np.arange(survey.num_pings) if ping_indices is None
+             else np.unique(np.asarray(ping_indices, dtype=np.int64)))
+    if pings.size == 0 or pings.min() < 0 or pings.max() >= survey.num_pings:
+        raise ShsasError(f"fit: ping_indices must be non-empty and within 0..{survey.num_pings - 1}")
+    pings = pings[valid[pings].any(axis=1)]
+    if pings.size == 0:
+        raise ShsasError("fit: no training ping records any range bin inside the scene box "
+                         "(fix: check t0, sensor positions and meta.scene_box)")
+    sel = valid[pings]
+    energy = float(np.mean(np.abs(s[pings][sel]) ** 2))
+    if not energy > 0:
+        raise ShsasError("fit: the signals are all zero inside the scene's range window")
+    return _Data(torch.from_numpy(s.astype(np.complex64)), torch.from_numpy(np.abs(s).astype(np.float64)),
+                 radii, torch.from_numpy(valid), pings, energy)
+
+
+def _generator(seed: int, iteration: int, stream: int = 0) -> torch.Generator:
+    # SeedSequence mixes (seed, iteration, stream) into well-separated 64-bit seeds
+    s = np.random.SeedSequence([seed, iteration, stream]).generate_state(1, dtype=np.uint64)[0]
+    return torch.Generator().manual_seed(int(s) & ((1 << 63) - 1))
+
+
+def _batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, device, dtype):
+    """Pings, bins and their targets of one iteration (all draws from ``it_gen``)."""
+    n_train = len(data.pings)
+    b = min(cfg.pings_per_batch, n_train)
+    pick = torch.randperm(n_train, generator=it_gen)[:b].numpy()
+    pings = np.sort(data.pings[pick])
+    idx, _pdf = sample_bins(data.magnitude[pings], data.valid[pings], cfg.num_bins, cfg.uniform_fraction, it_gen)
+    rows = torch.as_tensor(pings)[:, None]
+    target = data.signals[rows, idx].to(device)
+    radii = torch.as_tensor(np.take_along_axis(data.radii[pings], idx.numpy(), axis=1), dtype=dtype, device=device)
+    geom = ping_geometry(survey, pings, device, dtype, cfg.render.beamwidth_deg)
+    return pings, geom, radii, target
+
+
+def _set_active_degree(field: torch.nn.Module, degree: int | None) -> None:
+    """Progressive SH: zero the coefficients above ``degree`` through the field's output layer."""
+    handle = getattr(field, "_shsas_progressive_hook", None)
+    if handle is not None:
+        handle.remove()
+        field._shsas_progressive_hook = None
+    if degree is None or degree >= field.cfg.sh_degree:
+        return
+    k, keep = field.cfg.num_coefficients, (degree + 1) ** 2
+    mask = torch.ones(2 * k)
+    mask[keep:k] = 0
+    mask[k + keep:] = 0
+
+    def hook(_mod, _inp, out):
+        return out * mask.to(out.device, out.dtype)
+
+    field._shsas_progressive_hook = field.linears[-1].register_forward_hook(hook)
+
+
+def _render_batch(field, amp_mod, geom: PingGeometry, radii, cfg: TrainConfig, gen, create_graph=True):
+    rcfg = cfg.render_config()
+    dirs, omega = cone_directions(geom.axis, geom.half_angle, rcfg.num_rays, gen, jitter=True)
+    return render_samples(field, geom, radii, dirs, omega, rcfg, amp_mod().to(radii.dtype), create_graph)
+
+
+def _regularisers(field, out: dict, geom: PingGeometry, cfg: TrainConfig, gen: torch.Generator,
+                  tv_delta: float) -> dict[str, torch.Tensor]:
+    valid = out["valid"]
+    dens = out["density"]
+    terms: dict[str, torch.Tensor] = {}
+    nvalid = valid.sum().clamp_min(1)
+    terms["sparsity"] = dens.sum() / nvalid
+    w = cfg.weights
+    if not w.any_tv:
+        return terms
+    flat = torch.nonzero(valid.reshape(-1), as_tuple=False)[:, 0]
+    if flat.numel() == 0:
+        zero = dens.sum() * 0
+        return terms | {"tv_density": zero, "tv_scatter": zero, "tv_phase": zero}
+    perm = torch.randperm(flat.numel(), generator=gen)[: cfg.tv_points].to(flat.device)
+    sel = flat[perm]
+    x = out["x"].reshape(-1, 3)[sel]
+    delta = torch.randn(sel.numel(), 3, generator=gen, dtype=torch.float64).to(x.device, x.dtype)
+    delta = tv_delta * delta / delta.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    rx = geom.rx[:, None, None, :].expand(out["x"].shape).reshape(-1, 3)[sel]
+    xd = x + delta
+    look = xd - rx
+    look = look / look.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    od = field(xd, look, with_normals=False)
+    rho0, rho1 = dens.reshape(-1)[sel], od["density"]
+    s0, s1 = out["scattering"].reshape(-1)[sel], od["scattering"]
+    terms["tv_density"] = (rho0 - rho1).abs().mean()
+    a0, a1 = s0.abs(), s1.abs()
+    terms["tv_scatter"] = (a0 - a1).abs().mean()
+    u0 = s0 / (a0 + 1e-12)
+    u1 = s1 / (a1 + 1e-12)
+    terms["tv_phase"] = (u0 - u1).abs().mean()
+    return terms
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:
+    """What must match for a checkpoint to be resumed (iters may grow)."""
+    c = cfg.model_dump(mode="json")
+    c.pop("iters")
+    c.pop("checkpoint_every")
+    c.pop("device")
+    fcfg = getattr(field, "cfg", None)
+    return {"train": c, "field": fcfg.model_dump(mode="json") if hasattr(fcfg, "model_dump") else None,
+            "pings": data.pings.tolist(), "energy": data.energy}
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read a checkpoint written by :func:`fit` (a dict; see ``fit``)."""
+    return torch.load(Path(path), map_location=map_location, weights_only=False)
+
+
+def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig | None = None,
+        progress: ProgressFn | None = None, should_stop: StopFn | None = None,
+        checkpoint_dir: str | Path | None = None, ping_indices: Sequence[int] | None = None,
+        stage: str = "fit") -> FitResult:
+    """Train ``field`` so that rendered pings match ``signals``.
+
+    Args:
+        field: an ``SHField`` (or any module with its ``forward``); trained in place, moved to
+            the config's device.
+        survey: geometry, time axis, scene box and beam metadata.
+        signals: (N, T) complex pulse-deconvolved signals s_PD on the survey's time axis.
+        config: :class:`TrainConfig`.
+        progress: ``progress(fraction, stage, {"loss", "data_loss", "it/s"})`` once per iteration.
+        should_stop: polled between iterations; when it returns True a checkpoint is written
+            (if ``checkpoint_dir``) and :class:`~shsas_core.errors.Cancelled` is raised.
+        checkpoint_dir: where ``checkpoint.pt`` is written every ``checkpoint_every`` iterations
+            and at the end; if it already holds a compatible checkpoint, training resumes from it.
+        ping_indices: training pings (default all); hold the rest out for novel views.
+        stage: stage name reported to ``progress``.
+
+    Returns:
+        :class:`FitResult`.
+
+    Raises:
+        ShsasError: bad signals/config, or a checkpoint from a different configuration.
+        Cancelled: ``should_stop()`` returned True.
+    """
+    cfg = config or TrainConfig()
+    progress = progress or no_progress
+    device = resolve_device(cfg.device)
+    t_start = time.perf_counter()
+    data = _prepare(survey, signals, ping_indices)
+    field.to(device)
+    dtype = next((p.dtype for p in field.parameters()), torch.float32)
+    if cfg.progressive_sh_every is not None and not hasattr(field, "linears"):
+        raise ShsasError("fit: progressive_sh_every needs an SHField (output layer 'linears')")
+    amp_mod = _Amplitude().to(device)
+    params = list(field.parameters()) + ([amp_mod.log_amplitude] if cfg.learn_amplitude else [])
+    opt = torch.optim.Adam(params, lr=cfg.lr)
+    box = survey.meta.scene_box
+    tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
+    fp = _fingerprint(cfg, field, data)
+
+    ckpt_path = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
+    loss_hist: list[float] = []
+    data_hist: list[float] = []
+    start = 0
+    if ckpt_path is not None and ckpt_path.exists():
+        ck = load_checkpoint(ckpt_path, device)
+        if ck.get("fingerprint") != json.loads(json.dumps(fp)):
+            raise ShsasError(f"fit: checkpoint {ckpt_path} was made with a different configuration, "
+                             "survey or field (fix: use a new output directory or delete it)")
+        field.load_state_dict(ck["field"])
+        amp_mod.load_state_dict(ck["amplitude"])
+        opt.load_state_dict(ck["optimizer"])
+        start = int(ck["iteration"])
+        loss_hist, data_hist = list(ck["loss_history"]), list(ck["data_loss_history"])
+        torch.set_rng_state(ck["rng"]["torch"])
+        np.random.set_state(ck["rng"]["numpy"])
+        random.setstate(ck["rng"]["python"])
+        if torch.cuda.is_available() and ck["rng"].get("cuda") is not None:
+            torch.cuda.set_rng_state_all(ck["rng"]["cuda"])
+    elif ckpt_path is not None:
+        ckpt_path.parent.mkdir(parents=True, exist_ok=True)
+
+    def save() -> None:
+        if ckpt_path is None:
+            return
+        rng = {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
+               "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None}
+        _atomic_save({"iteration": it_done, "field": field.state_dict(), "amplitude": amp_mod.state_dict(),
+                      "optimizer": opt.state_dict(), "loss_history": loss_hist,
+                      "data_loss_history": data_hist, "rng": rng, "fingerprint": fp,
+                      "config": cfg.model_dump(mode="json"), "signal_energy": data.energy,
+                      "field_config": fp["field"]}, ckpt_path)
+
+    if start == 0:
+        _init_amplitude(field, amp_mod, data, survey, cfg, device, dtype)
+    it_done = start
+    t_loop = time.perf_counter()
+    try:
+        for it in range(start, cfg.iters):
+            check_stop(should_stop)
+            if cfg.progressive_sh_every is not None:
+                _set_active_degree(field, it // cfg.progressive_sh_every)
+            gen = _generator(cfg.seed, it)
+            _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
+            out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
+            pred = out["signal"].to(target.dtype)
+            data_loss = (pred - target).abs().pow(2).mean() / data.energy
+            w = cfg.weights
+            loss = w.tof * data_loss
+            if it >= cfg.reg_start and (w.sparsity > 0 or w.any_tv):
+                reg = _regularisers(field, out, geom, cfg, gen, tv_delta)
+                loss = loss + w.sparsity * reg["sparsity"]
+                if w.any_tv:
+                    loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
+                            + w.tv_phase * reg["tv_phase"])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            it_done = it + 1
+            loss_hist.append(float(loss.detach()))
+            data_hist.append(float(data_loss.detach()))
+            rate = (it_done - start) / max(time.perf_counter() - t_loop, 1e-9)
+            progress(it_done / cfg.iters, stage, {"loss": loss_hist[-1], "data_loss": data_hist[-1], "it/s": rate})
+            if it_done % cfg.checkpoint_every == 0:
+                save()
+    except Cancelled:
+        save()
+        raise
+    finally:
+        if cfg.progressive_sh_every is not None:
+            _set_active_degree(field, None)
+    elapsed_loop = time.perf_counter() - t_loop
+    save()
+    return FitResult(loss_history=loss_hist, data_loss_history=data_hist,
+                     iters_per_s=(it_done - start) / elapsed_loop if it_done > start and elapsed_loop > 0 else 0.0,
+                     iterations=it_done, start_iteration=start, amplitude=float(amp_mod().detach()),
+                     signal_energy=data.energy, checkpoint_path=str(ckpt_path) if ckpt_path else None,
+                     elapsed_s=time.perf_counter() - t_start)
+
+
+def _init_amplitude(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, device, dtype) -> None:
+    """Closed-form start for A: ‖s‖ / ‖ŝ‖ over a seeded batch (stream 1 of iteration 0)."""
+    gen = _generator(cfg.seed, 0, stream=1)
+    _p, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
+    with torch.enable_grad():
+        out = _render_batch(field, amp_mod, geom, radii, cfg, gen, create_graph=False)
+    pred = out["signal"].detach()
+    num, den = float(target.abs().pow(2).sum().sqrt()), float(pred.abs().pow(2).sum().sqrt())
+    if den > 0 and num > 0 and math.isfinite(num / den):
+        with torch.no_grad():
+            amp_mod.log_amplitude.fill_(math.log(num / den))
