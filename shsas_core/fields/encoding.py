@@ -18,10 +18,11 @@ Two implementations of the same maths:
 
 * :func:`encode_reference`: the plain eager version, a Python loop over levels and corners; the
   reference every faster path is tested against.
-* :func:`encode_fused`: all levels and corners in one batched gather (int32 row indices,
-  ``index_select``), no Python loop over levels. Optionally also returns the analytic spatial
-  Jacobian of the features, d features / d u (P, D, 3), from the same gathered corner values;
-  the field uses it to get normals by forward-mode differentiation in the same pass.
+* :func:`encode_fused`: all levels and corners in one batched gather (``index_select`` on a
+  complex view of the table, whose backward is a matching ``index_add``), no Python loop over
+  levels, nested lerps instead of 8 corner weights. Optionally also returns the analytic spatial
+  Jacobian of the features (as tangents (3, P, D)) from the same gathered corner values; the
+  field uses it to get normals by forward-mode differentiation in the same pass.
 
 Both are built from differentiable torch ops only, so they are differentiable to any order with
 respect to the table and the input (double backward for create_graph normals works).
@@ -171,73 +172,143 @@ class FusedLayout:
     """Device tensors of a :class:`LevelLayout` for the batched path (cached per device)."""
 
     def __init__(self, layout: LevelLayout, device: torch.device):
-        t = lambda v, dt: torch.tensor(v, dtype=dt, device=device)  # noqa: E731
         n = layout.resolutions
-        self.res_f64 = t([float(r) for r in n], torch.float64)
-        self.dense = t(layout.dense, torch.bool)
-        self.offsets = t(layout.offsets, torch.int32)
-        # per-axis multipliers: dense stride (1, n+1, (n+1)^2) or hash prime
-        self.mult = t(
+        self.res = torch.tensor([float(r) for r in n], dtype=torch.float64, device=device)
+        # levels are ordered by resolution, so the dense ones form a prefix
+        self.n_dense = sum(layout.dense)
+        assert all(layout.dense[: self.n_dense]) and not any(layout.dense[self.n_dense :])
+        self.offsets = torch.tensor(layout.offsets, dtype=torch.int64, device=device)
+        # per-axis multipliers: dense strides (1, n+1, (n+1)^2) or the hash primes
+        self.mult = torch.tensor(
             [[1, r + 1, (r + 1) ** 2] if d else list(PRIMES) for r, d in zip(n, layout.dense, strict=True)],
-            torch.int64,
+            dtype=torch.int64,
+            device=device,
         )
         self.mask = layout.table_size - 1
         self.total_rows = layout.total_rows
 
 
+def _as_rows(t: torch.Tensor) -> torch.Tensor:
+    """(N, 2) real -> (N,) complex view (one 8/16-byte element per row) for faster index ops."""
+    return torch.view_as_complex(t) if t.shape[1] == 2 and t.is_contiguous() else t
+
+
+def _gather_impl(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    src = _as_rows(table)
+    out = src.index_select(0, rows)
+    return torch.view_as_real(out) if out.is_complex() else out
+
+
+def _scatter_impl(grad: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
+    grad = grad.contiguous()
+    src = _as_rows(grad)
+    acc = torch.zeros((n_rows, *src.shape[1:]), dtype=src.dtype, device=src.device)
+    acc.index_add_(0, rows, src)
+    return torch.view_as_real(acc) if acc.is_complex() else acc
+
+
+class _GatherRows(torch.autograd.Function):
+    """table[rows] whose backward is :class:`_ScatterRows` (and vice versa): differentiable to
+    any order. Same values as ``index_select``; the backward adds rows as complex numbers when
+    F = 2 (one index_add element per row), several times faster on CPU than the stock
+    ``index_select`` backward."""
+
+    @staticmethod
+    def forward(ctx, table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(rows)
+        ctx.n_rows = table.shape[0]
+        return _gather_impl(table, rows)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):
+        (rows,) = ctx.saved_tensors
+        return _ScatterRows.apply(grad, rows, ctx.n_rows), None
+
+
+class _ScatterRows(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, grad: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
+        ctx.save_for_backward(rows)
+        return _scatter_impl(grad, rows, n_rows)
+
+    @staticmethod
+    def backward(ctx, gg: torch.Tensor):
+        (rows,) = ctx.saved_tensors
+        return _GatherRows.apply(gg, rows), None, None
+
+
+def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Tensor]:
+    """Table rows of the 8 corners on every level, and the fractional cell positions.
+
+    Args:
+        u: (P, 3) points, already clamped to [0, 1].
+
+    Returns:
+        rows (P, Lv, 8) int64 (corner c = 4 cz + 2 cy + cx, level offsets included) and
+        frac (P, Lv, 3) in u's dtype (differentiable in u).
+    """
+    res = fl.res.to(u.dtype)
+    i0, frac = _cell(u[:, None, :], res[None, :, None])  # (P, Lv, 3)
+    # Row = combine over axes of (i0_a + c_a) * mult_a: a sum on dense levels, an xor on hashed
+    # ones. Multiplying per axis before combining keeps the temporaries at (P, Lv, 3, 2); only
+    # the final (P, Lv, 8) index is materialised. Masking each hashed term with T - 1 before
+    # the xor is exact because bitwise and distributes over xor.
+    corner = torch.arange(2, device=u.device)
+    axes = (i0[..., None] + corner) * fl.mult[None, :, :, None]  # (P, Lv, 3, 2)
+    nd = fl.n_dense
+    parts = []
+    if nd > 0:
+        a = axes[:, :nd]
+        parts.append(a[:, :, 2, :, None, None] + a[:, :, 1, None, :, None] + a[:, :, 0, None, None, :])
+    if nd < axes.shape[1]:
+        a = axes[:, nd:] & fl.mask
+        parts.append(a[:, :, 2, :, None, None] ^ a[:, :, 1, None, :, None] ^ a[:, :, 0, None, None, :])
+    rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+    rows = rows.reshape(u.shape[0], fl.res.shape[0], 8) + fl.offsets[None, :, None]
+    return rows, frac
+
+
 def encode_fused(
     u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Batched encoding: all levels and corners in one ``index_select`` on the flat table.
+    """Batched encoding: all levels and corners in one gather from the flat table.
+
+    Interpolation is done as nested lerps (x, then y, then z) on the gathered corner values,
+    and the spatial Jacobian reuses the same differences, so it costs a few extra lerps.
 
     Args:
         u: (P, 3) points in [0, 1]^3 (clamped here).
         table: (total_rows, F) vertex features.
         fl: device layout.
-        with_jacobian: also return d features / d u.
+        with_jacobian: also return the Jacobian.
 
     Returns:
-        features (P, n_levels * F) and, if asked, the Jacobian (P, n_levels * F, 3) (else None).
+        features (P, n_levels * F) and, if asked, the Jacobian as tangents ``(3, P, n_levels *
+        F)``: entry ``[a, p, d] = d feature_d / d u_a`` at point p (else None).
     """
     u = u.clamp(0.0, 1.0)
-    p = u.shape[0]
-    nlev = fl.res_f64.shape[0]
-    feat = table.shape[1]
-    res = fl.res_f64.to(u.dtype)
-    i0, f = _cell(u[:, None, :], res[None, :, None])  # (P, Lv, 3)
-    # Row index = combine_axes(axis_term(i0_a + c_a)) with sum for dense levels and xor for
-    # hashed ones. Multiplying per axis before combining keeps every temporary at (P, Lv, 2):
-    # only the final (P, Lv, 8) index is materialised, in int32. Masking each hashed term with
-    # (T - 1) before the xor is exact because bitwise and distributes over xor.
-    corner = torch.arange(2, device=u.device)
-    axes = (i0[..., None] + corner) * fl.mult[None, :, :, None]  # (P, Lv, 3, 2) int64
-    dense = fl.dense[None, :, None, None]
-    axes = torch.where(dense, axes, axes & fl.mask).to(torch.int32)
-    ax, ay, az = axes[:, :, 0], axes[:, :, 1], axes[:, :, 2]
-    # corner order c = 4*cz + 2*cy + cx (same as encode_reference)
-    d_rows = az[..., :, None, None] + ay[..., None, :, None] + ax[..., None, None, :]
-    h_rows = az[..., :, None, None] ^ ay[..., None, :, None] ^ ax[..., None, None, :]
-    rows = torch.where(fl.dense[None, :, None, None, None], d_rows, h_rows).reshape(p, nlev, 8)
-    rows = rows + fl.offsets[None, :, None]
-    vals = table.index_select(0, rows.reshape(-1)).reshape(p, nlev, 8, feat)
-
-    f = f.to(table.dtype)
-    wx = torch.stack((1 - f[..., 0], f[..., 0]), -1)  # (P, Lv, 2)
-    wy = torch.stack((1 - f[..., 1], f[..., 1]), -1)
-    wz = torch.stack((1 - f[..., 2], f[..., 2]), -1)
-    wyz = wz[..., :, None, None] * wy[..., None, :, None]  # (P, Lv, 2, 2, 1)
-    w = (wyz * wx[..., None, None, :]).reshape(p, nlev, 8)
-    out = (w[..., None] * vals).sum(2).reshape(p, nlev * feat)
+    p, feat = u.shape[0], table.shape[1]
+    rows, frac = fused_rows(u, fl)
+    nlev = rows.shape[1]
+    v = _GatherRows.apply(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, feat)  # [z, y, x]
+    frac = frac.to(table.dtype)
+    fx = frac[:, :, 0, None, None, None]
+    fy = frac[:, :, 1, None, None]
+    fz = frac[:, :, 2, None]
+    dx = v[:, :, :, :, 1] - v[:, :, :, :, 0]  # (P, Lv, 2z, 2y, F)
+    a = v[:, :, :, :, 0] + fx * dx
+    dy = a[:, :, :, 1] - a[:, :, :, 0]  # (P, Lv, 2z, F)
+    b = a[:, :, :, 0] + fy * dy
+    dz = b[:, :, 1] - b[:, :, 0]  # (P, Lv, F)
+    out = (b[:, :, 0] + fz * dz).reshape(p, nlev * feat)
     if not with_jacobian:
         return out, None
-    # d w / d u_a = res * (product of the other two axis weights) * (+1 or -1 on axis a)
-    sgn = torch.tensor([-1.0, 1.0], dtype=table.dtype, device=u.device)
-    r = res.to(table.dtype)[None, :, None]
-    dwx = (wyz * (sgn * r)[..., None, None, :]).reshape(p, nlev, 8)
-    dwy = (wz[..., :, None, None] * (sgn * r)[..., None, :, None] * wx[..., None, None, :]).reshape(p, nlev, 8)
-    dwz = ((sgn * r)[..., :, None, None] * wy[..., None, :, None] * wx[..., None, None, :]).reshape(p, nlev, 8)
-    dw = torch.stack((dwx, dwy, dwz), -1)  # (P, Lv, 8, 3)
-    jac = torch.einsum("plca,plcf->plfa", dw, vals).reshape(p, nlev * feat, 3)
+    res = fl.res.to(table.dtype)[None, :, None]
+    cx = dx[:, :, :, 0] + fy * (dx[:, :, :, 1] - dx[:, :, :, 0])  # lerp_y of x-differences
+    jx = (cx[:, :, 0] + fz * (cx[:, :, 1] - cx[:, :, 0])) * res
+    jy = (dy[:, :, 0] + fz * (dy[:, :, 1] - dy[:, :, 0])) * res
+    jz = dz * res
+    jac = torch.stack((jx, jy, jz), 0).reshape(3, p, nlev * feat)
     return out, jac
 
 
@@ -282,7 +353,7 @@ class HashEncoding(torch.nn.Module):
         return encode_reference(u, self.table, self.layout)
 
     def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Features (P, D) and their Jacobian d features / d u (P, D, 3), one gather."""
+        """Features (P, D) and their Jacobian as tangents (3, P, D) = d features / d u_a."""
         self._check(u)
         out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True)
         assert jac is not None

@@ -253,10 +253,10 @@ class SHField(torch.nn.Module):
         if not with_normals:
             out = self._mlp(self.encoding.forward(u)) * inside[:, None]
             return self._assemble(out[:, : self.k], out[:, self.k :], dirs)
-        h, jac = self.encoding.forward_with_jacobian(u)
-        # Jacobian in world units: d h / d x_a = d h / d u_a / size_a
-        jac = jac / self.box_size.to(jac.dtype)
-        out, t = self._mlp_with_tangents(h, jac.permute(2, 0, 1))
+        h, tang = self.encoding.forward_with_jacobian(u)
+        # tangents in world units: d h / d x_a = d h / d u_a / size_a
+        tang = tang / self.box_size.to(tang.dtype)[:, None, None]
+        out, t = self._mlp_with_tangents(h, tang)
         out = out * inside[:, None]
         t = t * inside[None, :, None]
         re, im = out[:, : self.k], out[:, self.k :]
