@@ -229,7 +229,7 @@ def backproject(
     sig = torch.as_tensor(np.asarray(signals) if not torch.is_tensor(signals) else signals)
     if sig.ndim != 2 or not sig.is_complex():
         raise ShsasError(f"backprojection: signals must be (N, T) complex, got {tuple(sig.shape)} {sig.dtype}")
-    n, t = sig.shape
+    n = sig.shape[0]
     tx, rx, t0 = (np.asarray(v, dtype=np.float64) for v in (tx, rx, t0))
     points = np.asarray(points, dtype=np.float64)
     if tx.shape != (n, 3) or rx.shape != (n, 3) or t0.shape != (n,):

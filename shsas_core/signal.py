@@ -137,14 +137,18 @@ def matched_filter(survey: Survey, signals: np.ndarray | None = None) -> np.ndar
         (N, T) complex64, same kind (passband analytic or baseband) as the input.
     """
     if signals is None:
-        s = analytic_samples(survey)
-    else:
-        s = np.asarray(signals)
-        s = analytic_signal(s.astype(np.float32)) if not np.iscomplexobj(s) else s.astype(np.complex64)
+        if survey.samples is None:
+            raise ShsasError("survey samples were not loaded (read the survey with load_samples=True)")
+        signals = survey.samples
+    s = np.asarray(signals)
     rep = pulse_replica(survey)
     if survey.meta.signal_kind == "baseband":
         m = np.arange(rep.size) / survey.meta.fs
         rep = rep * np.exp(-2j * np.pi * float(survey.meta.carrier_hz) * m)
+    if not np.iscomplexobj(s):
+        # Real data correlated with the analytic replica: exactly the analytic version of the
+        # real correlation (its real part is Σ s[k+m] p[m]), with no finite-window Hilbert error.
+        return correlate(s.astype(np.float64), rep)
     # corr(s_a, p_a) = 2 · analytic(corr(s, p)): halve so real and analytic input agree.
     return (0.5 * correlate(s, rep)).astype(np.complex64)
 
@@ -190,7 +194,7 @@ def crop_to_scene(
     sig = survey.samples if signals is None else np.asarray(signals)
     if sig is None:
         raise ShsasError("survey samples were not loaded")
-    n, t = sig.shape
+    t = sig.shape[1]
     fs, c = survey.meta.fs, survey.meta.sound_speed
     margin = 4.0 / fs if margin_s is None else float(margin_s)
     r_min, r_max = two_way_range_bounds(survey.tx, survey.rx, box or survey.meta.scene_box)
