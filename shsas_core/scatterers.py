@@ -14,6 +14,9 @@ segment length; otherwise trimesh's pure-numpy ray-triangle code does (slow, sam
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import trimesh
@@ -103,13 +106,19 @@ def sample_surface(mesh: trimesh.Trimesh, count: int, seed: int = 0) -> Scattere
 class Occluder:
     """Segment-occlusion queries against a triangle mesh.
 
+    Points go into the caster's own frame once (:meth:`to_frame`), then :meth:`blocked` tests
+    segments between such points, which lets the simulator convert each scatterer and sensor
+    once instead of once per ray.
+
     Args:
         mesh: the occluding mesh (metres).
         backend: ``"auto"`` (Embree when trimesh has it, else the pure-trimesh caster),
             ``"embree"`` or ``"triangle"``.
+        threads: Embree queries are split over this many threads (Embree releases the GIL);
+            None: one per CPU. Results do not depend on it.
     """
 
-    def __init__(self, mesh: trimesh.Trimesh, backend: str = "auto"):
+    def __init__(self, mesh: trimesh.Trimesh, backend: str = "auto", threads: int | None = None):
         if backend not in ("auto", "embree", "triangle"):
             raise ShsasError(f"unknown ray backend '{backend}' (auto, embree or triangle)")
         if backend == "auto":
@@ -118,16 +127,59 @@ class Occluder:
             raise ShsasError("ray backend 'embree' needs the embreex package (pip install embreex)")
         self.backend = backend
         self.mesh = mesh
+        self.threads = max(1, threads or os.cpu_count() or 1)
+        self._pool: ThreadPoolExecutor | None = None
         if backend == "embree":
             from trimesh.ray.ray_pyembree import RayMeshIntersector
 
             # trimesh's wrapper moves and scales the mesh into a ~100-unit box for float32
-            # precision; queries go through the same transform.
+            # precision; our queries use the same transform.
             self._wrap = RayMeshIntersector(mesh)._scene
         else:
             from trimesh.ray.ray_triangle import RayMeshIntersector
 
             self._tri = RayMeshIntersector(mesh)
+
+    def to_frame(self, p: np.ndarray) -> np.ndarray:
+        """(R, 3) world points, m -> the caster's frame (float32 scaled box for Embree)."""
+        p = np.asarray(p, dtype=np.float64)
+        if self.backend == "embree":
+            return ((p - self._wrap.origin) * self._wrap.scale).astype(np.float32)
+        return p
+
+    def blocked(self, start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Whether each open segment from ``start`` to ``end`` (both (R, 3), in the caster's
+        frame, see :meth:`to_frame`) hits the mesh: (R,) bool."""
+        r = len(start)
+        if r == 0:
+            return np.zeros(0, dtype=bool)
+        d = end - start
+        if self.backend == "embree":
+            # the direction is the whole segment, so the segment is t in (0, 1): no normalising
+            far = np.ones(r, dtype=np.float32)
+            scene = self._wrap.scene
+            if self.threads == 1 or r < 20_000:
+                res = scene.run(start, d, dists=far, query="OCCLUDED")
+            else:
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(self.threads)
+                cuts = np.linspace(0, r, self.threads + 1).astype(int)
+                parts = self._pool.map(
+                    lambda ab: scene.run(start[ab[0]:ab[1]], d[ab[0]:ab[1]], dists=far[ab[0]:ab[1]],
+                                         query="OCCLUDED"),
+                    list(itertools.pairwise(cuts)))
+                res = np.concatenate(list(parts))
+            # embreex answers OCCLUDED with 0 for a blocked ray and -1 for a free one
+            return np.asarray(res) != -1
+        length = np.linalg.norm(d, axis=1)
+        unit = d / np.maximum(length, 1e-300)[:, None]
+        _, ray_idx, locs = self._tri.intersects_id(start, unit, multiple_hits=False,
+                                                   return_locations=True)
+        out = np.zeros(r, dtype=bool)
+        if len(ray_idx):
+            dist = np.einsum("ij,ij->i", locs - start[ray_idx], unit[ray_idx])
+            out[ray_idx[(dist > 0) & (dist < length[ray_idx])]] = True
+        return out
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray, lengths: np.ndarray) -> np.ndarray:
         """Whether each segment ``origin + s·direction``, 0 < s < length, hits the mesh.
@@ -140,21 +192,14 @@ class Occluder:
         Returns:
             (R,) bool, True where blocked.
         """
-        r = len(origins)
-        if r == 0:
-            return np.zeros(0, dtype=bool)
-        if self.backend == "embree":
-            w = self._wrap
-            o = ((np.asarray(origins, dtype=np.float64) - w.origin) * w.scale).astype(np.float32)
-            d = np.asarray(directions, dtype=np.float32)
-            far = (np.asarray(lengths, dtype=np.float64) * w.scale).astype(np.float32)
-            # embreex answers OCCLUDED with 0 for a blocked ray and -1 for a free one
-            res = w.scene.run(o, d, dists=far, query="OCCLUDED")
-            return np.asarray(res) != -1
-        _, ray_idx, locs = self._tri.intersects_id(
-            origins, directions, multiple_hits=False, return_locations=True)
-        blocked = np.zeros(r, dtype=bool)
-        if len(ray_idx):
-            dist = np.einsum("ij,ij->i", locs - origins[ray_idx], directions[ray_idx])
-            blocked[ray_idx[dist < lengths[ray_idx]]] = True
-        return blocked
+        o = np.asarray(origins, dtype=np.float64)
+        e = o + np.asarray(directions, dtype=np.float64) * np.asarray(lengths, dtype=np.float64)[:, None]
+        return self.blocked(self.to_frame(o), self.to_frame(e))
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __del__(self) -> None:
+        self.close()

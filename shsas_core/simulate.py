@@ -102,6 +102,7 @@ class SimulationConfig(_Cfg):
     upsample: int = Field(8, ge=2, le=64, description="fine-grid factor of the delay splatting")
     chunk_pairs: int = Field(1_000_000, ge=1000, description="point-ping pairs held at once")
     guard_samples: int = Field(8, ge=0, le=10_000, description="extra samples before and after the range window")
+    threads: int | None = Field(None, ge=1, le=256, description="ray-casting threads; None: one per CPU")
 
     @model_validator(mode="after")
     def _nyquist(self) -> SimulationConfig:
@@ -205,84 +206,96 @@ class _Synth:
         return out[:, self.pad:self.pad + self.T]
 
 
-def _amplitudes(cfg: ScatteringConfig, n: np.ndarray | None, wt: np.ndarray, wr: np.ndarray,
-                rt: np.ndarray, rr: np.ndarray, cos_t: np.ndarray, cos_r: np.ndarray) -> np.ndarray:
-    """Angular and range factor of each visible pair (weights applied by the caller)."""
-    if n is None:
-        a = np.ones_like(rt)
-    else:
-        if cfg.lambert == "tx":
-            a = cos_t.copy()
-        elif cfg.lambert == "rx":
-            a = cos_r.copy()
-        elif cfg.lambert == "both":
-            a = np.sqrt(cos_t * cos_r)
-        else:
-            a = np.ones_like(cos_t)
-        if cfg.specular_weight > 0:
-            h = wt + wr
-            cos_h = np.einsum("ij,ij->i", n, h) / np.maximum(np.linalg.norm(h, axis=1), 1e-12)
-            a += cfg.specular_weight * np.maximum(cos_h, 0.0) ** cfg.specular_exponent
-    if cfg.spreading:
-        a /= rt * rr
-    return a
+class _Scene:
+    """Per-simulation constants of the scatterers, computed once for all chunks."""
+
+    def __init__(self, sc: Scatterers, weight: np.ndarray, phase: np.ndarray | None,
+                 cfg: ScatteringConfig, occ: Occluder | None):
+        self.sc, self.weight, self.phase, self.cfg, self.occ = sc, weight, phase, cfg, occ
+        x = sc.points
+        self.xx = np.einsum("ij,ij->i", x, x)
+        self.nx = None if sc.normals is None else np.einsum("ij,ij->i", sc.normals, x)
+        self.start = self.start_back = None
+        if occ is not None:
+            # shadow rays leave from just above the surface so they do not hit their own face
+            if sc.normals is None:
+                self.start = occ.to_frame(x)
+            else:
+                self.start = occ.to_frame(x + cfg.ray_offset * sc.normals)
+                if cfg.two_sided:
+                    self.start_back = occ.to_frame(x - cfg.ray_offset * sc.normals)
 
 
-def _chunk(sc: Scatterers, weight: np.ndarray, phase: np.ndarray | None, tx: np.ndarray,
-           rx: np.ndarray, t0: np.ndarray, cfg: SimulationConfig, occ: Occluder | None,
-           synth: _Synth) -> tuple[np.ndarray, int]:
+def _norm(v: np.ndarray) -> np.ndarray:
+    """Row norms of (K, 3) vectors (einsum: cheaper than linalg.norm here)."""
+    return np.sqrt(np.einsum("ij,ij->i", v, v))
+
+
+def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
+           cfg: SimulationConfig, synth: _Synth) -> tuple[np.ndarray, int]:
     """Echoes of all scatterers for one chunk of B pings: (B, T) float64 and #contributions."""
-    s = cfg.scattering
+    s, sc, occ = cfg.scattering, scene.sc, scene.occ
     b, m = len(tx), len(sc)
-    x = sc.points
-    # (B, M) pair geometry; vectors are recomputed per pair-subset to keep memory low
-    dt = tx[:, None, :] - x[None]                        # (B, M, 3)
-    rt = np.sqrt(np.einsum("bmk,bmk->bm", dt, dt))
-    dr = rx[:, None, :] - x[None]
-    rr = np.sqrt(np.einsum("bmk,bmk->bm", dr, dr))
-    if sc.normals is not None:
-        ct = np.einsum("bmk,mk->bm", dt, sc.normals) / rt
-        cr = np.einsum("bmk,mk->bm", dr, sc.normals) / rr
-        if s.two_sided:
-            flip = ct < 0
-            ct = np.where(flip, -ct, ct)
-            cr = np.where(flip, -cr, cr)
-        mask = (ct > 0) & (cr > 0)
-        pi, mi = np.nonzero(mask)
+    x, nrm = sc.points, sc.normals
+    flip = None
+    if nrm is not None:
+        # n·(o - x) for every pair, (B, M); its sign says whether the point faces the sensor
+        ft = tx @ nrm.T
+        ft -= scene.nx
+        fr = rx @ nrm.T
+        fr -= scene.nx
+        if s.two_sided:  # face the side the TX is on
+            flip = ft < 0
+            np.negative(ft, out=ft, where=flip)
+            np.negative(fr, out=fr, where=flip)
+        k = np.flatnonzero((ft > 0) & (fr > 0))           # facing both sensors
     else:
-        pi, mi = np.divmod(np.arange(b * m), m)
-    del dt, dr
-    if occ is not None and len(pi):
-        xo = x[mi]
-        if sc.normals is not None:
-            nn = sc.normals[mi]
-            if s.two_sided:
-                nn = np.where(flip[pi, mi][:, None], -nn, nn)
-            xo = xo + s.ray_offset * nn
+        k = np.arange(b * m)
+    if occ is not None and len(k):
         # TX leg first; only pairs that see the TX need the RX ray
-        wt_ = (tx[pi] - xo) / rt[pi, mi][:, None]
-        free = ~occ.occluded(xo, wt_, rt[pi, mi])
-        pi, mi, xo = pi[free], mi[free], xo[free]
-        wr_ = (rx[pi] - xo) / rr[pi, mi][:, None]
-        free = ~occ.occluded(xo, wr_, rr[pi, mi])
-        pi, mi = pi[free], mi[free]
-    r_t, r_r = rt[pi, mi], rr[pi, mi]
-    if sc.normals is not None:
-        n = sc.normals[mi]
-        c_t, c_r = ct[pi, mi], cr[pi, mi]
-        if s.two_sided:
-            n = np.where(flip[pi, mi][:, None], -n, n)
-        w_t = (tx[pi] - x[mi]) / r_t[:, None]
-        w_r = (rx[pi] - x[mi]) / r_r[:, None]
+        pi, mi = np.divmod(k, m)
+        if flip is None:
+            start = scene.start[mi]
+        else:
+            back = flip.ravel()[k]
+            start = np.where(back[:, None], scene.start_back[mi], scene.start[mi])
+        free = ~occ.blocked(start, occ.to_frame(tx)[pi])
+        k, pi, start = k[free], pi[free], start[free]
+        free = ~occ.blocked(start, occ.to_frame(rx)[pi])
+        k = k[free]
+    pi, mi = np.divmod(k, m)
+    xm = x[mi]
+    r_t = _norm(tx[pi] - xm)
+    r_r = _norm(rx[pi] - xm)
+    if nrm is None:
+        a = np.ones(len(k))
     else:
-        n = c_t = c_r = w_t = w_r = None
-    a = _amplitudes(s, n, w_t, w_r, r_t, r_r, c_t, c_r) * weight[mi]
+        c_t, c_r = ft.ravel()[k] / r_t, fr.ravel()[k] / r_r  # cos θ_T, cos θ_R
+        del ft, fr
+        if s.lambert == "tx":
+            a = c_t
+        elif s.lambert == "rx":
+            a = c_r
+        elif s.lambert == "both":
+            a = np.sqrt(c_t * c_r)
+        else:
+            a = np.ones(len(k))
+        if s.specular_weight > 0:
+            # Blinn-Phong lobe around the bistatic half vector h = unit(ω_T + ω_R)
+            h = (tx[pi] - xm) / r_t[:, None] + (rx[pi] - xm) / r_r[:, None]
+            n = nrm[mi] if flip is None else nrm[mi] * np.where(flip.ravel()[k], -1.0, 1.0)[:, None]
+            cos_h = np.einsum("ij,ij->i", n, h) / np.maximum(np.linalg.norm(h, axis=1), 1e-12)
+            a = a + s.specular_weight * np.maximum(cos_h, 0.0) ** s.specular_exponent
+    if s.spreading:
+        a = a / (r_t * r_r)
+    a = a * scene.weight[mi]
     delay = ((r_t + r_r) / cfg.sound_speed - t0[pi]) * cfg.fs
-    if phase is None:
+    if scene.phase is None:
         block = synth.render(pi, delay, a, None, b)
     else:
-        block = synth.render(pi, delay, a * np.cos(phase[mi]), a * np.sin(phase[mi]), b)
-    return block, len(pi)
+        ph = scene.phase[mi]
+        block = synth.render(pi, delay, a * np.cos(ph), a * np.sin(ph), b)
+    return block, len(k)
 
 
 # -- noise ------------------------------------------------------------------------------------
@@ -385,27 +398,32 @@ def simulate(
     pulse = lfm_pulse(cfg.pulse.f_start, cfg.pulse.f_stop, cfg.pulse.duration, cfg.fs,
                       cfg.pulse.window, cfg.pulse.window_param)
     t0, num_t = record_window(tx, rx, box, cfg.sound_speed, cfg.fs, len(pulse), cfg.guard_samples)
-    occ = Occluder(mesh, cfg.scattering.ray_backend) if (
+    occ = Occluder(mesh, cfg.scattering.ray_backend, cfg.threads) if (
         mesh is not None and cfg.scattering.occlusion) else None
 
     synth = _Synth(pulse, num_t, cfg.upsample)
+    scene = _Scene(sc, weight, phase, cfg.scattering, occ)
     n = len(tx)
     clean = np.empty((n, num_t), dtype=np.float32)
     step = max(1, cfg.chunk_pairs // len(sc))
     contributions = 0
     power = 0.0
     start = time.perf_counter()
-    for lo in range(0, n, step):
-        check_stop(should_stop)
-        hi = min(n, lo + step)
-        block, k = _chunk(sc, weight, phase, tx[lo:hi], rx[lo:hi], t0[lo:hi], cfg, occ, synth)
-        contributions += k
-        power += inband_power(block, cfg.fs, cfg.pulse.f_start, cfg.pulse.f_stop) * block.size
-        clean[lo:hi] = block
-        if progress is not None:
-            el = max(time.perf_counter() - start, 1e-9)
-            progress(hi / n, "simulate", {"pings": float(hi), "pings_per_s": hi / el,
-                                          "contributions_per_s": contributions / el})
+    try:
+        for lo in range(0, n, step):
+            check_stop(should_stop)
+            hi = min(n, lo + step)
+            block, k = _chunk(scene, tx[lo:hi], rx[lo:hi], t0[lo:hi], cfg, synth)
+            contributions += k
+            power += inband_power(block, cfg.fs, cfg.pulse.f_start, cfg.pulse.f_stop) * block.size
+            clean[lo:hi] = block
+            if progress is not None:
+                el = max(time.perf_counter() - start, 1e-9)
+                progress(hi / n, "simulate", {"pings": float(hi), "pings_per_s": hi / el,
+                                              "contributions_per_s": contributions / el})
+    finally:
+        if occ is not None:
+            occ.close()
     signal_power = power / clean.size
     samples, sigma = _add_noise(clean, cfg, signal_power, np.random.default_rng(seq_noise))
 
