@@ -28,7 +28,6 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -279,7 +278,7 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
         vol = backproject_survey(train, grid, train.extras["deconvolved"], device=device,
                                  progress=sub_progress(progress, 0.0, 0.8), should_stop=should_stop)
     else:
-        field, result = _fit_neural(method, spec, train, device, ckpt,
+        field, result = _fit_neural(method, spec, survey, s_pd, train_idx, device, ckpt,
                                     sub_progress(progress, 0.0, 0.8), should_stop)
         loss_curve = _loss_curve(result)
         check_stop(should_stop)
@@ -321,19 +320,21 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
     return rep, vol, mesh_, fit_fig
 
 
-def _fit_neural(method: str, spec: ReconstructionSpec, train: Survey, device: Any, ckpt: Path,
-                progress: ProgressFn, should_stop: StopFn) -> tuple[Any, Any]:
-    """Build the SH field for ``method`` and fit it to the training pings' s_PD."""
+def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
+                train_idx: np.ndarray, device: Any, ckpt: Path, progress: ProgressFn,
+                should_stop: StopFn) -> tuple[Any, Any]:
+    """Build the SH field for ``method`` and fit it to the training pings' s_PD (checkpointed
+    under ``ckpt``; a compatible checkpoint there is resumed)."""
     import torch
 
     from .fields import FieldConfig, SHField
     from .train import fit
 
     torch.manual_seed(spec.seed)
-    field = SHField(FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=train.meta.scene_box)).to(device)
+    field = SHField(FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box)).to(device)
     cfg = train_config(spec)
-    result = fit(field, train, train.extras["deconvolved"], cfg, progress=progress,
-                 should_stop=should_stop, checkpoint_dir=ckpt)
+    result = fit(field, survey, s_pd, cfg, progress=progress, should_stop=should_stop,
+                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}")
     return field, result
 
 
@@ -355,20 +356,14 @@ def _render(field: Any, survey: Survey, pings: np.ndarray, spec: ReconstructionS
     return render_transients(field, survey, pings, cfg, amplitude=amplitude, device=device, seed=spec.seed)
 
 
-def _loss_curve(result: Any) -> list[tuple[int, float]]:
-    hist = getattr(result, "history", None) or getattr(result, "losses", None) or []
-    curve: list[tuple[int, float]] = []
-    for i, h in enumerate(hist):
-        if isinstance(h, Mapping):
-            it = int(h.get("iter", h.get("iteration", i)))
-            loss = h.get("loss", h.get("total"))
-        elif isinstance(h, tuple | list):
-            it, loss = int(h[0]), h[1]
-        else:
-            it, loss = i, h
-        if loss is not None and math.isfinite(float(loss)):
-            curve.append((it, float(loss)))
-    return curve
+def _loss_curve(result: Any, max_points: int = 400) -> list[tuple[int, float]]:
+    """(iteration, total loss) from ``FitResult.loss_history``, thinned to ``max_points``."""
+    hist = list(getattr(result, "loss_history", None) or [])
+    step = max(1, math.ceil(len(hist) / max_points))
+    keep = list(range(0, len(hist), step))
+    if hist and keep[-1] != len(hist) - 1:
+        keep.append(len(hist) - 1)
+    return [(i, float(hist[i])) for i in keep if math.isfinite(float(hist[i]))]
 
 
 def _save_fit(ckpt: Path, fit: SignalFit) -> None:
