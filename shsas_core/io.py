@@ -175,7 +175,9 @@ def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
         raise SurveyValidationError("format", f"attribute is {fmt!r}, not '{FORMAT_NAME}'",
                                     "import other formats with `shsas convert`")
     version = f.attrs.get("schema_version")
-    if version is None or int(version) != SCHEMA_VERSION:
+    if isinstance(version, np.generic):
+        version = version.item()
+    if not isinstance(version, int | float) or version != SCHEMA_VERSION:
         raise SurveyValidationError("schema_version", f"is {version!r}; this build reads version {SCHEMA_VERSION}")
     meta_raw = f.attrs.get("meta")
     if meta_raw is None:

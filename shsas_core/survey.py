@@ -14,7 +14,6 @@ import pydantic
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from .errors import SurveyValidationError
-from .pulse import lfm_pulse
 
 SignalKind = Literal["real", "analytic", "baseband"]
 
@@ -313,5 +312,8 @@ def check_sizes(n: int, t: int, p: int) -> None:
 
 def default_pulse(meta: SurveyMeta) -> np.ndarray:
     """Sample the LFM pulse described by ``meta.pulse`` at ``meta.fs``."""
+    # imported here: scipy.signal costs seconds to import and `shsas info` never needs it
+    from .pulse import lfm_pulse
+
     p = meta.pulse
     return lfm_pulse(p.f_start, p.f_stop, p.duration, meta.fs, p.window, p.window_param)

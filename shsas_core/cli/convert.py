@@ -16,6 +16,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="force the input format (auto, shsas, airsas-csv, airsas-pickle, svss)")
     p.add_argument("--compression", choices=["none", "gzip", "lzf"], default="none",
                    help="compress sample arrays (default none: fastest to read)")
+    p.add_argument("--background", default=None,
+                   help="AirSAS: empty-scene scan folder/.zip to subtract (default: a background/ "
+                   "subfolder when present)")
+    p.add_argument("--waveform", type=int, default=None,
+                   help="AirSAS: index of the interleaved waveform to keep (default: the first ping's)")
+    p.add_argument("--image-number", type=int, default=None,
+                   help="SVSS: image number N when the track folder holds several")
     p.set_defaults(func=run)
 
 
@@ -23,7 +30,23 @@ def run(args: argparse.Namespace) -> int:
     from ..importers import load_survey
     from ..io import write_survey
 
-    survey = load_survey(args.input, fmt=args.format)
+    options = {}
+    if args.background is not None:
+        options["background"] = args.background
+    if args.waveform is not None:
+        options["waveform"] = args.waveform
+    if args.image_number is not None:
+        options["image_number"] = args.image_number
+    import sys
+
+    from ..progress import TqdmProgress
+
+    # the bar goes to stderr; keep stderr to the one-line error when it is not a terminal
+    bar = TqdmProgress(disable=not sys.stderr.isatty())
+    try:
+        survey = load_survey(args.input, fmt=args.format, progress=bar, **options)
+    finally:
+        bar.close()
     out = write_survey(survey, args.output, compression=None if args.compression == "none" else args.compression)
     print(f"wrote {out} ({survey.num_pings} pings x {survey.num_samples} samples)")
     return 0

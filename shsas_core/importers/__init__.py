@@ -1,17 +1,38 @@
 """Importers: turn the formats users bring into a :class:`~shsas_core.survey.Survey`.
 
-``load_survey(path, fmt="auto")`` detects the format from the contents (not the extension).
+``load_survey(path, fmt="auto")`` detects the format from the contents (not the extension):
+canonical HDF5 (``format`` attribute), SVSS HDF5 (``DataReal``/``Position`` datasets, or a
+folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder or .zip, or an
+AirSAS processed pickle. Layouts and conversions: docs/formats.md.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
+from typing import Any
 
-from ..errors import SurveyValidationError, UnsupportedFormatError
+from ..errors import ShsasError, SurveyValidationError, UnsupportedFormatError
+from ..progress import ProgressFn
 from ..survey import Survey
 
 FORMATS = ("shsas", "airsas-csv", "airsas-pickle", "svss")
+
+_AIRSAS_NAMES = {"coordinates.csv", "sysparams.csv", "waveformparams.csv", "waveforms.csv"}
+_SVSS_NAME = re.compile(r"^(unpack float|motion solution) - LF - down - \d+\.hdf5$")
+
+
+def _detect_dir(p: Path) -> str:
+    names = [q.name for q in p.iterdir()]
+    if any(_SVSS_NAME.match(n) for n in names):
+        return "svss"
+    if any(n.lower() in _AIRSAS_NAMES or n.startswith("Flight-") for n in names) or any(
+            p.rglob("Coordinates.csv")):
+        return "airsas-csv"
+    raise UnsupportedFormatError(
+        f"file: folder '{p.name}' is neither an AirSAS scan (Coordinates.csv, SysParams.csv, "
+        "Flight-*.csv ...) nor an SVSS track ('unpack float - LF - down - N.hdf5')")
 
 
 def detect_format(path: str | os.PathLike) -> str:
@@ -20,10 +41,12 @@ def detect_format(path: str | os.PathLike) -> str:
     if not p.exists():
         raise SurveyValidationError("file", f"'{p}' does not exist")
     if p.is_dir():
-        return "airsas-csv"
+        return _detect_dir(p)
     with open(p, "rb") as fh:
         head = fh.read(8)
     if head.startswith(b"\x89HDF\r\n\x1a\n"):
+        if _SVSS_NAME.match(p.name):
+            return "svss"
         import h5py
 
         try:
@@ -32,35 +55,61 @@ def detect_format(path: str | os.PathLike) -> str:
                     return "shsas"
                 if "DataReal" in f or "Position" in f:
                     return "svss"
-        except OSError:
+        except (OSError, RuntimeError, KeyError):
             return "shsas"  # let the canonical reader report the corruption precisely
         return "shsas"
-    if head.startswith(b"PK\x03\x04"):
+    if head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
         return "airsas-csv"
-    if head[:1] == b"\x80":
+    if head[:1] == b"\x80" or p.suffix.lower() in (".pkl", ".pik", ".pickle"):
         return "airsas-pickle"
     raise UnsupportedFormatError(
         f"file: '{p.name}' is not a recognised survey (expected canonical HDF5, an AirSAS CSV folder "
         "or .zip, an AirSAS processed pickle, or SVSS HDF5)")
 
 
-def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: bool = True) -> Survey:
-    """Load a survey of any supported format."""
-    fmt = detect_format(path) if fmt == "auto" else fmt
+def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: bool = True,
+                progress: ProgressFn | None = None, **options: Any) -> Survey:
+    """Load a survey of any supported format.
+
+    Args:
+        fmt: "auto" or one of :data:`FORMATS`.
+        load_samples: False reads only metadata and geometry where the format allows.
+        progress: ``progress(fraction, stage, metrics)`` for importers that read many files
+            (AirSAS CSV); ignored by the others.
+        options: importer keywords, e.g. ``background=``, ``waveform=`` (AirSAS CSV),
+            ``image_number=``, ``temperature_f=`` (SVSS), ``scene_box=`` (all importers).
+    """
+    try:
+        fmt = detect_format(path) if fmt == "auto" else fmt
+        if progress is not None and fmt == "airsas-csv":
+            options = {**options, "progress": progress}
+        return _load(path, fmt, load_samples, options)
+    except ShsasError:
+        raise
+    except (OSError, RuntimeError, KeyError, ValueError, UnicodeError, EOFError) as exc:
+        # safety net: a library error on a malformed file becomes a one-line, named problem
+        raise SurveyValidationError(
+            "file", f"'{Path(path).name}' could not be read ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0][:160] if str(exc) else 'no detail'})") from None
+
+
+def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[str, Any]) -> Survey:
     if fmt == "shsas":
         from ..io import read_survey
 
+        if options:
+            raise SurveyValidationError("options", f"{sorted(options)} do not apply to canonical files")
         return read_survey(path, load_samples=load_samples)
     if fmt == "airsas-csv":
         from .airsas import read_airsas_csv
 
-        return read_airsas_csv(path)
+        return read_airsas_csv(path, load_samples=load_samples, **options)
     if fmt == "airsas-pickle":
         from .airsas import read_airsas_pickle
 
-        return read_airsas_pickle(path)
+        return read_airsas_pickle(path, load_samples=load_samples, **options)
     if fmt == "svss":
         from .svss import read_svss
 
-        return read_svss(path)
+        return read_svss(path, load_samples=load_samples, **options)
     raise UnsupportedFormatError(f"format: unknown format '{fmt}' (use auto or one of {', '.join(FORMATS)})")

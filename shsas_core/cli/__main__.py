@@ -1,0 +1,7 @@
+"""``python -m shsas_core.cli``: the same entry point as the ``shsas`` script."""
+
+import sys
+
+from . import main
+
+sys.exit(main())
