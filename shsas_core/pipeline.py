@@ -55,6 +55,16 @@ from .volume import Grid, Volume
 _WEIGHTS = {"deconvolution": 0.05, "backprojection": 0.15, "reed": 1.0, "shsas": 1.0, "report": 0.05}
 #: Pings whose signal fit is drawn in the report.
 _FIT_PINGS = 3
+#: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
+#: rendering a whole ping costs about as much as a few hundred training iterations on a CPU.
+_MAX_NOVEL_PINGS = 32
+
+
+def _evenly(idx: np.ndarray, k: int) -> np.ndarray:
+    """At most ``k`` entries of ``idx``, evenly spaced."""
+    if len(idx) <= k:
+        return np.asarray(idx)
+    return np.asarray(idx)[np.linspace(0, len(idx) - 1, k).round().astype(np.int64)]
 
 
 class PipelineResult(BaseModel):
@@ -285,17 +295,18 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
         progress(0.8, method, {"stage": 1.0})
         vol = field_volume(field, grid, name=f"{method} |sigma_DC|")
         amplitude = float(getattr(result, "amplitude", 1.0) or 1.0)
-        if len(held_idx):
-            check_stop(should_stop)
-            pred = _render(field, survey, held_idx, spec, amplitude, device)
-            from .metrics import signal_errors
-
-            signal_errs = signal_errors(pred, s_pd[held_idx])
-        fit_pings = held_idx[:_FIT_PINGS] if len(held_idx) else train_idx[:: max(1, len(train_idx) // _FIT_PINGS)][:_FIT_PINGS]
+        # held-out pings give the novel-view errors and the figure; else a few training pings
+        scored = _evenly(held_idx, _MAX_NOVEL_PINGS)
+        fit_pings = scored if len(scored) else _evenly(train_idx, _FIT_PINGS)
         check_stop(should_stop)
         pred = _render(field, survey, fit_pings, spec, amplitude, device)
-        fit_fig = SignalFit(times=survey.times()[fit_pings] * 1e3, measured=s_pd[fit_pings],
-                            predicted=pred, pings=[int(i) for i in fit_pings])
+        if len(held_idx):
+            from .metrics import signal_errors
+
+            signal_errs = signal_errors(pred, s_pd[scored])
+        show = slice(0, _FIT_PINGS)
+        fit_fig = SignalFit(times=survey.times()[fit_pings[show]] * 1e3, measured=s_pd[fit_pings[show]],
+                            predicted=pred[show], pings=[int(i) for i in fit_pings[show]])
         _save_fit(ckpt, fit_fig)
     check_stop(should_stop)
     progress(0.9, method, {})

@@ -27,6 +27,7 @@ def test_holdout_split():
     assert len(holdout_split(10, 0.0, 0)[1]) == 0
 
 
+@pytest.mark.slow  # ~20 s: one-off torch.compile of the backprojection kernel
 def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     survey = sphere_survey
     spec = ReconstructionSpec(methods=["backprojection"], grid=24, device="cpu")
@@ -80,3 +81,37 @@ def test_cancel_between_steps(tmp_path, sphere_survey):
         run(ReconstructionSpec(methods=["backprojection"], grid=16, device="cpu"), survey, tmp_path,
             should_stop=stop)
     assert not (tmp_path / "report.json").exists()
+
+
+@pytest.mark.slow  # ~60 s on the shared 2-core machine (rendering held-out pings dominates)
+def test_neural_methods_end_to_end_with_holdout_and_resume(tmp_path, sphere_survey):
+    spec = ReconstructionSpec(methods=["reed", "shsas"], sh_degree=1, iters=4, grid=12, num_bins=8,
+                              num_rays=16, holdout_fraction=0.1, device="cpu", seed=3)
+    stops = {"n": 0, "armed": True}
+
+    def stop_in_shsas_fit():
+        # cancel once, during the second method's training
+        if stops["armed"] and (tmp_path / "checkpoints" / "reed" / "done.json").exists():
+            stops["n"] += 1
+            if stops["n"] > 3:
+                stops["armed"] = False
+                return True
+        return False
+
+    with pytest.raises(Cancelled):
+        run(spec, sphere_survey, tmp_path, should_stop=stop_in_shsas_fit)
+    assert (tmp_path / "checkpoints" / "reed" / "done.json").exists()
+    assert not (tmp_path / "checkpoints" / "shsas" / "done.json").exists()
+    seen = []
+    res = run(spec, sphere_survey, tmp_path, progress=lambda f, s, m: seen.append((s, dict(m))))
+    assert any(s == "reed" and m.get("cached") for s, m in seen)  # finished method skipped
+    rep = load_report(res.report_json)
+    by = {m.method: m for m in rep.methods}
+    assert by["reed"].sh_degree == 0 and by["shsas"].sh_degree == 1
+    for m in by.values():
+        assert len(m.loss_curve) == 4 and [i for i, _ in m.loss_curve] == [0, 1, 2, 3]
+        assert set(m.signal_errors) >= {"l1_real", "mse_abs"}  # held-out pings were scored
+        assert all(np.isfinite(v) for v in m.signal_errors.values())
+        vol = read_volume_npy(tmp_path / m.artifacts["volume"])
+        assert vol.values.dtype == np.float32 and vol.grid.shape == (12, 12, 12)
+    assert set(res.metrics) == {"reed", "shsas"} and "pc_chamfer_l2" in res.metrics["shsas"]
