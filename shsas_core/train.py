@@ -7,8 +7,9 @@ per ping (∝ |s_PD| plus a uniform share), renders them with ``num_rays`` TX ra
     L = λ1 L_ToF + λ2 L_sparse + λ3 TV(ρ) + λ4 TV(|σ|) + λ5 TV(∠σ)
 
 * ``L_ToF = mean_k |A ŝ_k - s_k|^2 / E`` — mean squared complex error (real² + imag²) of the
-  rendered bins, divided by the constant ``E``, the mean |s|² of the in-scene bins of the training
-  pings; 1.0 is what predicting zeros scores, so the value reads as a relative residual.
+  rendered bins, divided by the constant ``E``, the expected |s|² of a bin drawn by the sampler
+  (averaged over the training pings); predicting zeros scores 1.0 in expectation, so the value
+  reads as a relative residual.
 * ``L_sparse = mean ρ(x)`` over the valid samples (L1: ρ >= 0).
 * TV terms compare the field at ``R`` random valid samples ``x`` and at ``x + δ``, ``δ`` a random
   direction of length ``tv_delta`` (default: 1/128 of the scene-box diagonal):
@@ -47,7 +48,13 @@ from pydantic import BaseModel, ConfigDict, Field
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
 from .progress import ProgressFn, StopFn, check_stop, no_progress
-from .render.renderer import PingGeometry, RenderConfig, ping_geometry, render_samples
+from .render.renderer import (
+    PingGeometry,
+    RenderConfig,
+    passband_factor,
+    ping_geometry,
+    render_samples,
+)
 from .render.sampling import bin_radii, cone_directions, sample_bins, scene_range_window
 
 CHECKPOINT_NAME = "checkpoint.pt"
@@ -150,10 +157,11 @@ class _Data:
     radii: np.ndarray  # (N, T) float64 two-way path per sample, m
     valid: torch.Tensor  # (N, T) bool, inside the scene's range window (and beyond the baseline)
     pings: np.ndarray  # (n_train,) indices of the training pings
-    energy: float  # mean |s|^2 over valid bins of training pings
+    energy: float  # expected |s|^2 of a drawn bin (see _prepare)
 
 
-def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None) -> _Data:
+def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None,
+             uniform_fraction: float) -> _Data:
     s = np.asarray(signals)
     if s.ndim != 2 or s.shape != (survey.num_pings, survey.num_samples):
         raise ShsasError(f"fit: signals must have shape (pings={survey.num_pings}, samples="
@@ -162,6 +170,9 @@ def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None) ->
         raise ShsasError("fit: signals must be complex (analytic or pulse-deconvolved s_PD)")
     if not np.all(np.isfinite(s)):
         raise ShsasError("fit: signals contain NaN or inf")
+    factor = passband_factor(survey)
+    if factor is not None:  # baseband survey: train on the analytic passband equivalent
+        s = s * factor
     radii = bin_radii(survey.t0, survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
     box = survey.meta.scene_box
     r_lo, r_hi = scene_range_window(survey.tx, survey.rx, box.min, box.max)
@@ -175,8 +186,16 @@ def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None) ->
     if pings.size == 0:
         raise ShsasError("fit: no training ping records any range bin inside the scene box "
                          "(fix: check t0, sensor positions and meta.scene_box)")
+    # E = expected |s|^2 of one drawn bin under the sampling pdf, averaged over training pings,
+    # so a zero prediction scores 1.0 in expectation
+    mag2 = np.abs(s[pings]).astype(np.float64) ** 2
     sel = valid[pings]
-    energy = float(np.mean(np.abs(s[pings][sel]) ** 2))
+    n_valid = sel.sum(axis=1, keepdims=True)
+    w = np.where(sel, np.sqrt(mag2), 0.0)
+    tot = w.sum(axis=1, keepdims=True)
+    p = (1 - uniform_fraction) * np.where(tot > 0, w / np.where(tot > 0, tot, 1), sel / n_valid) \
+        + uniform_fraction * sel / n_valid
+    energy = float(np.mean((p * mag2).sum(axis=1)))
     if not energy > 0:
         raise ShsasError("fit: the signals are all zero inside the scene's range window")
     return _Data(torch.from_numpy(s.astype(np.complex64)), torch.from_numpy(np.abs(s).astype(np.float64)),
@@ -316,7 +335,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     progress = progress or no_progress
     device = resolve_device(cfg.device)
     t_start = time.perf_counter()
-    data = _prepare(survey, signals, ping_indices)
+    data = _prepare(survey, signals, ping_indices, cfg.uniform_fraction)
     field.to(device)
     dtype = next((p.dtype for p in field.parameters()), torch.float32)
     if cfg.progressive_sh_every is not None and not hasattr(field, "linears"):

@@ -15,6 +15,7 @@ from .geometry import (
 from .renderer import (
     PingGeometry,
     RenderConfig,
+    passband_factor,
     ping_geometry,
     render_pings,
     render_samples,
@@ -35,7 +36,7 @@ from .transmittance import optical_depth, transmittance, transmittance_cumprod
 __all__ = [
     "PingGeometry", "RenderConfig", "area_jacobian", "beam_axes", "bin_radii", "cone_directions",
     "cone_half_angles", "ellipsoid_frame", "intersect_focal", "intersect_quadric", "optical_depth",
-    "ping_geometry", "points_on_rays", "render_pings", "render_samples", "render_transients",
+    "passband_factor", "ping_geometry", "points_on_rays", "render_pings", "render_samples", "render_transients",
     "sample_bins", "sample_ellipsoids", "scene_range_window", "signal_errors", "transmittance",
     "transmittance_cumprod",
 ]

@@ -176,7 +176,8 @@ def render_transients(field: torch.nn.Module, survey, ping_indices: Sequence[int
         seed: ray jitter seed. bins_per_chunk: bins evaluated per field call (memory bound).
 
     Returns:
-        (len(ping_indices), T) complex64.
+        (len(ping_indices), T) complex64, analytic passband (baseband for baseband surveys, see
+        :func:`passband_factor`).
     """
     cfg = cfg or RenderConfig()
     if device is None:
@@ -214,7 +215,28 @@ def render_transients(field: torch.nn.Module, survey, ping_indices: Sequence[int
         trans = transmittance(cat["density"], cat["l"], cfg.two_way_transmittance)
         sig = (cat["scattering"] * (cat["weight"] * trans * cat["lambertian"]).to(cat["scattering"].dtype)).sum(-1)
         out[row, keep] = (amplitude * sig[0]).cpu().numpy().astype(np.complex64)
+    factor = passband_factor(survey, idx)
+    if factor is not None:  # back to the survey's baseband convention
+        out = (out * np.conj(factor)).astype(np.complex64)
     return out
+
+
+def passband_factor(survey, ping_indices: Sequence[int] | np.ndarray | None = None) -> np.ndarray | None:
+    """``exp(j 2π f_c t)`` on the sample times of baseband surveys, None for passband ones.
+
+    The renderer predicts analytic passband samples: a scatterer exactly on a bin's ellipsoid adds
+    to that bin with the phase of its own scattering coefficient. Baseband signals
+    ``s_bb(t) = s(t) exp(-j 2π f_c t)`` are therefore multiplied by this factor before training
+    and rendered transients by its conjugate, so every survey kind uses the same field.
+
+    Returns:
+        (len, T) complex128 or None.
+    """
+    if survey.meta.signal_kind != "baseband":
+        return None
+    idx = np.arange(survey.num_pings) if ping_indices is None else np.asarray(ping_indices, dtype=np.int64)
+    t = survey.t0[idx][:, None] + np.arange(survey.num_samples)[None, :] / survey.meta.fs
+    return np.exp(2j * np.pi * float(survey.meta.carrier_hz) * t)
 
 
 def signal_errors(pred: np.ndarray | Tensor, meas: np.ndarray | Tensor) -> dict[str, float]:

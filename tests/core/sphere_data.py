@@ -21,8 +21,12 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 
 
 def sphere_survey(n_pings: int = 48, center=(0.0, 0.0, 0.09), radius: float = 0.05,
-                  ring: float = 0.6, samples: int = 256, n_points: int = 6000):
-    """Survey + ideal s_PD (N, T) complex64 for a sphere seen from a helix of pings."""
+                  ring: float = 0.6, samples: int = 256, n_points: int = 6000, coherent: bool = True):
+    """Survey + ideal s_PD (N, T) complex64 for a sphere seen from a helix of pings.
+
+    ``coherent=False`` replaces the analytic kernel by a real Gaussian envelope of standard
+    deviation 1/(2B) (an incoherent, magnitude-only echo profile).
+    """
     box = SceneBox(min=(-0.1, -0.1, 0.0), max=(0.1, 0.1, 0.2))
     meta = SurveyMeta(platform="sphere-test", scene_box=box, fs=100e3, sound_speed=343.0)
     ang = np.linspace(0, 2 * np.pi, n_pings, endpoint=False)
@@ -46,7 +50,11 @@ def sphere_survey(n_pings: int = 48, center=(0.0, 0.0, 0.09), radius: float = 0.
         a = da * cos_t[vis] / (rt[vis] * rr[vis])
         tau = (rt[vis] + rr[vis]) / c
         dt = t[n][None, :] - tau[:, None]
-        sig[n] = (a[:, None] * np.exp(2j * np.pi * fc * dt) * np.sinc(bw * dt)).sum(0)
+        if coherent:
+            kern = np.exp(2j * np.pi * fc * dt) * np.sinc(bw * dt)
+        else:
+            kern = np.exp(-0.5 * (2 * bw * dt) ** 2)
+        sig[n] = (a[:, None] * kern).sum(0)
     survey = Survey(tx=tx, rx=rx, samples=np.real(sig).astype(np.float32), t0=t0, meta=meta,
                     pulse=default_pulse(meta))
     return survey, (sig / np.abs(sig).max()).astype(np.complex64)

@@ -277,3 +277,18 @@ def test_signal_errors_layout_and_values():
     assert signal_errors(a, a)["mse_imag"] == 0.0
     with pytest.raises(ShsasError):
         signal_errors(a, b[:2])
+
+
+def test_baseband_surveys_render_in_their_own_convention():
+    import dataclasses
+
+    pas = _survey()
+    meta = pas.meta.model_copy(update={"signal_kind": "baseband", "carrier_hz": 20e3})
+    bb = dataclasses.replace(pas, meta=meta, samples=pas.samples.astype(np.complex64))
+    field = ShellField(center=(0.0, 0.0, 0.1), radius=0.04, width=0.006, amp=50.0)
+    cfg = RenderConfig(num_rays=64)
+    a = render_transients(field, pas, [1], cfg, seed=3)
+    b = render_transients(field, bb, [1], cfg, seed=3)
+    t = pas.t0[1] + np.arange(pas.num_samples) / pas.meta.fs
+    assert np.abs(a).max() > 0
+    assert np.allclose(b[0], a[0] * np.exp(-2j * np.pi * 20e3 * t), rtol=1e-4, atol=1e-6 * np.abs(a).max())

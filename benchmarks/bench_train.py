@@ -1,0 +1,144 @@
+"""Milliseconds per training iteration: fast path vs eager reference, side by side.
+
+fast  = FieldConfig.fast=True (batched hash encoding + forward-mode normals, one first-order
+        backward) + RenderConfig.fast=True (focal closed-form intersection, cumsum transmittance)
+eager = FieldConfig.fast=False (per-level encoding, normals by double backward) +
+        RenderConfig.fast=False (ellipsoid-frame quadric, cumprod transmittance)
+
+One iteration = sample bins and rays, render with normals (Lambertian) and two-way
+transmittance, ToF loss, backward, Adam step — the body of ``shsas_core.train.fit``. Each
+configuration runs in its own subprocess so peak memory (CPU: max RSS; CUDA: max allocated) is
+its own. Usage:
+
+    python benchmarks/bench_train.py [--device cpu|cuda] [--cases cpu,paper] [--iters N]
+        [--threads T] [--encoding cpu|paper_gpu]
+
+Cases: ``cpu`` = 1 ping x 64 bins x 1024 rays, ``paper`` = 1 ping x 200 bins x 4800 rays; L = 3.
+Prints a table; never asserts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+
+CASES = {"cpu": (64, 1024), "paper": (200, 4800)}
+
+
+def _one(args: argparse.Namespace) -> dict:
+    import numpy as np
+    import torch
+
+    torch.set_num_threads(args.threads)
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+    from shsas_core.fields import FieldConfig, SHField, encoding_preset
+    from shsas_core.render import RenderConfig
+    from shsas_core.survey import SceneBox, Survey, SurveyMeta, default_pulse
+    from shsas_core.train import (
+        TrainConfig,
+        _Amplitude,
+        _batch,
+        _generator,
+        _prepare,
+        _render_batch,
+    )
+
+    fast = args.mode == "fast"
+    bins, rays = CASES[args.case]
+    dev = torch.device(args.device)
+    box = SceneBox(min=(-0.125, -0.125, 0.0), max=(0.125, 0.125, 0.2))
+    meta = SurveyMeta(platform="bench", scene_box=box)
+    n, t = 16, 1000
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    tx = np.stack([0.85 * np.cos(ang), 0.85 * np.sin(ang), np.full(n, 0.3)], 1)
+    rx = tx + np.array([0.0, 0.0, -0.038])
+    rng = np.random.default_rng(0)
+    sig = (rng.standard_normal((n, t)) + 1j * rng.standard_normal((n, t))).astype(np.complex64)
+    survey = Survey(tx=tx, rx=rx, samples=sig.real.copy(), t0=np.full(n, 1.5 / 343), meta=meta,
+                    pulse=default_pulse(meta))
+    torch.manual_seed(0)
+    field = SHField(FieldConfig(sh_degree=3, encoding=encoding_preset(args.encoding), scene_box=box,
+                                fast=fast)).to(dev)
+    cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device,
+                      render=RenderConfig(fast=fast, uniform_fraction=1.0))
+    data = _prepare(survey, sig, None, cfg.uniform_fraction)
+    amp = _Amplitude().to(dev)
+    opt = torch.optim.Adam([*list(field.parameters()), amp.log_amplitude], lr=1e-3)
+
+    def step(i: int) -> None:
+        gen = _generator(0, i)
+        _p, geom, radii, target = _batch(data, survey, gen, cfg, dev, torch.float32)
+        out = _render_batch(field, amp, geom, radii, cfg, gen)
+        loss = (out["signal"].to(target.dtype) - target).abs().pow(2).mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    for i in range(args.warmup):
+        step(i)
+    if dev.type == "cuda":
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
+    times = []
+    for i in range(args.iters):
+        t0 = time.perf_counter()
+        step(args.warmup + i)
+        if dev.type == "cuda":
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - t0)
+    if dev.type == "cuda":
+        peak = torch.cuda.max_memory_allocated() / 2**20
+    else:
+        import resource
+
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"case": args.case, "mode": args.mode, "points": bins * rays, "ms_median": 1e3 * float(np.median(times)),
+            "ms_min": 1e3 * float(np.min(times)), "peak_mib": peak}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--cases", default="cpu,paper")
+    ap.add_argument("--iters", type=int, default=5)
+    ap.add_argument("--warmup", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--encoding", default=None, help="hash preset (default: cpu on CPU, paper_gpu on CUDA)")
+    ap.add_argument("--case", help=argparse.SUPPRESS)
+    ap.add_argument("--mode", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    args.encoding = args.encoding or ("paper_gpu" if args.device.startswith("cuda") else "cpu")
+    if args.case:
+        print(json.dumps(_one(args)))
+        return
+    import torch
+
+    print(f"bench_train: device={args.device} threads={args.threads} encoding={args.encoding} "
+          f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations)")
+    print(f"{'case':<7}{'bins x rays':>14}{'points':>10}{'fast ms':>10}{'eager ms':>10}{'speed-up':>10}"
+          f"{'fast MiB':>10}{'eager MiB':>11}")
+    for case in args.cases.split(","):
+        res = {}
+        for mode in ("fast", "eager"):
+            cmd = [sys.executable, __file__, "--case", case, "--mode", mode, "--device", args.device,
+                   "--iters", str(args.iters), "--warmup", str(args.warmup), "--threads", str(args.threads),
+                   "--encoding", args.encoding]
+            out = subprocess.run(cmd, capture_output=True, text=True)
+            if out.returncode != 0:
+                print(f"{case} {mode} failed: {out.stderr.strip().splitlines()[-1:]}")
+                break
+            res[mode] = json.loads(out.stdout.strip().splitlines()[-1])
+        if len(res) < 2:
+            continue
+        b, r = CASES[case]
+        f, e = res["fast"], res["eager"]
+        print(f"{case:<7}{f'{b} x {r}':>14}{f['points']:>10}{f['ms_median']:>10.0f}{e['ms_median']:>10.0f}"
+              f"{e['ms_median'] / f['ms_median']:>9.2f}x{f['peak_mib']:>10.0f}{e['peak_mib']:>11.0f}")
+
+
+if __name__ == "__main__":
+    main()
