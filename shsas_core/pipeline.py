@@ -72,7 +72,9 @@ class PipelineResult(BaseModel):
 
     out_dir: str
     artifacts: list[str] = Field(description="file names in out_dir, sorted")
-    metrics: dict[str, dict[str, float]] = Field(description="method -> metric -> value (NaN = undefined)")
+    metrics: dict[str, dict[str, float]] = Field(
+        description="method -> metric -> value: pc_*/mesh_* geometry metrics when the survey has ground "
+        "truth (NaN = undefined), plus threshold, points, faces, seconds")
     report_json: str
     report_html: str
     timings: dict[str, float] = Field(description="seconds per stage")
@@ -212,7 +214,11 @@ def run(
     report = report.model_copy(update={"timings": timings})
     _rewrite_json(report, out / "report.json")
     progress(1.0, "done", {"seconds": timings["total"]})
-    return PipelineResult(out_dir=str(out), artifacts=artifacts, metrics=report.metrics(),
+    metrics = report.metrics()
+    for r in reports:  # also without ground truth: what was extracted and how long it took
+        metrics[r.method].update({"threshold": r.threshold, "points": float(r.points),
+                                  "faces": float(r.faces), "seconds": r.seconds})
+    return PipelineResult(out_dir=str(out), artifacts=artifacts, metrics=metrics,
                           report_json=str(json_path), report_html=str(html_path), timings=timings)
 
 

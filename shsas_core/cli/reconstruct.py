@@ -95,7 +95,7 @@ def print_result(result) -> None:
     from rich.console import Console
 
     con = Console()
-    if any(result.metrics.values()):
+    if any(k.startswith(("pc_", "mesh_")) for m in result.metrics.values() for k in m):
         con.print(metrics_table(result.metrics))
     else:
         con.print("no ground truth in the survey: no geometry metrics")

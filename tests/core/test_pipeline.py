@@ -63,6 +63,7 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     stages.clear()
     res2 = run(spec, survey, tmp_path, progress=lambda f, s, m: stages.append((f, s, dict(m))))
     assert res2.metrics == res.metrics
+    assert res.metrics["backprojection"]["points"] == rep.methods[0].points == len(pc["x"])
     assert any(m.get("cached") for _, s, m in stages if s == "backprojection")
     # a different spec clears the checkpoints and recomputes
     res3 = run(spec.model_copy(update={"threshold": 0.5}), survey, tmp_path)
