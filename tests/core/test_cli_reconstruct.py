@@ -62,3 +62,28 @@ def test_bad_input_exits_2_with_one_line(argv, needle, capsys, tmp_path, monkeyp
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err
+
+
+@pytest.mark.slow  # simulation + backprojection compile + a few training steps
+def test_demo_tiny(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")
+    out = tmp_path / "demo"
+    rc = main(["demo", "--out", str(out), "--shape", "cube", "--heights", "1", "--angles", "24",
+               "--iters", "2", "--grid", "10", "--bins", "4", "--rays", "8", "--device", "cpu", "--quiet"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "report.html" in text and "shsas" in text and "Chamfer" in text
+    rep = json.loads((out / "report.json").read_text())
+    assert [m["method"] for m in rep["methods"]] == ["backprojection", "reed", "shsas"]
+    assert (out / "survey.h5").is_file()
+
+
+def test_demo_defaults_are_a_valid_spec():
+    import argparse
+
+    from shsas_core.cli.demo import DEMO_SPEC
+    from shsas_core.cli.reconstruct import spec_from_args
+
+    spec = spec_from_args(argparse.Namespace(), **DEMO_SPEC)
+    assert spec.methods == ["backprojection", "reed", "shsas"] and spec.sh_degree == 3
+    assert spec_from_args(argparse.Namespace(iters=7), **DEMO_SPEC).iters == 7  # options win
