@@ -348,18 +348,33 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     from .train import fit
 
     torch.manual_seed(spec.seed)
-    field = SHField(FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box)).to(device)
+    fcfg = FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box,
+                       encoding=encoding_config(spec.encoding))
+    field = SHField(fcfg).to(device)
     cfg = train_config(spec)
     result = fit(field, survey, s_pd, cfg, progress=progress, should_stop=should_stop,
                  checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}")
     return field, result
 
 
+#: The ``small`` encoding: the setting the trainer's sphere convergence test uses on a CPU.
+SMALL_ENCODING = {"n_levels": 8, "log2_table_size": 13, "base_resolution": 8, "finest_resolution": 128}
+
+
+def encoding_config(name: str) -> Any:
+    """Hash-encoding config for ``spec.encoding`` (``cpu``, ``small`` or ``paper_gpu``)."""
+    from .fields import HashEncodingConfig, encoding_preset
+
+    if name == "small":
+        return HashEncodingConfig(**SMALL_ENCODING)
+    return encoding_preset(name)
+
+
 def train_config(spec: ReconstructionSpec) -> Any:
     """The trainer's config from the job spec (fields the trainer knows are passed through)."""
     from .train import TrainConfig
 
-    want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays,
+    want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays, "lr": spec.lr,
             "pings_per_batch": spec.pings_per_batch, "device": spec.device}
     fields = TrainConfig.model_fields
     return TrainConfig(**{k: v for k, v in want.items() if k in fields})

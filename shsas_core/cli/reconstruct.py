@@ -28,6 +28,9 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--bins", type=int, default=None, help="range bins rendered per ping per iteration (default 64)")
     g.add_argument("--rays", type=int, default=None, help="rays per ping per iteration (default 1024)")
     g.add_argument("--pings-per-batch", type=int, default=None, help="pings per training iteration (default 1)")
+    g.add_argument("--lr", type=float, default=None, help="Adam learning rate of the neural methods (default 1e-3)")
+    g.add_argument("--encoding", choices=["cpu", "small", "paper_gpu"], default=None,
+                   help="hash-encoding preset: cpu (default), small (fastest, short CPU runs), paper_gpu")
     g.add_argument("--holdout", type=float, default=None, metavar="FRACTION",
                    help="share of pings held out for novel-view signal errors (default 0)")
 
@@ -41,7 +44,7 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
     fields = {"methods": "methods", "sh_degree": "sh_degree", "iters": "iters", "grid": "grid",
               "device": "device", "threshold": "threshold", "deconv": "deconvolution", "seed": "seed",
               "bins": "num_bins", "rays": "num_rays", "pings_per_batch": "pings_per_batch",
-              "holdout": "holdout_fraction"}
+              "holdout": "holdout_fraction", "lr": "lr", "encoding": "encoding"}
     kw: dict[str, object] = dict(defaults)
     for opt, field in fields.items():
         v = getattr(args, opt, None)
