@@ -64,7 +64,7 @@ def simulate(name: str, args: argparse.Namespace, fraction: float = 1.0):
 def spec_for(args: argparse.Namespace, methods: list[str], sh_degree: int = 3) -> ReconstructionSpec:
     return ReconstructionSpec(methods=methods, sh_degree=sh_degree, iters=args.iters, grid=args.grid,
                               device=args.device, seed=args.seed, num_bins=args.bins, num_rays=args.rays,
-                              pings_per_batch=args.ppb)
+                              pings_per_batch=args.ppb, lr=args.lr, encoding=args.encoding)
 
 
 def fmt(v: float | None, f: str) -> str:
@@ -107,6 +107,8 @@ def main() -> None:
     ap.add_argument("--bins", type=int, default=32)
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--ppb", type=int, default=1, help="pings per batch")
+    ap.add_argument("--lr", type=float, default=1e-2)
+    ap.add_argument("--encoding", default="small", choices=["cpu", "small", "paper_gpu"])
     ap.add_argument("--device", default="auto")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--sparse-fraction", type=float, default=0.2)
@@ -122,7 +124,8 @@ def main() -> None:
     print(f"# shsas results (CPU budgets)\n\nmachine: {platform.platform()}, {platform.processor() or 'cpu'}; "
           f"survey: circular, {args.heights} heights x {args.angles} pings, {args.snr:g} dB; "
           f"grid {args.grid}, {args.iters} iterations, {args.bins} bins x {args.rays} rays x {args.ppb} pings "
-          f"per iteration, device {args.device}, seed {args.seed}\n", flush=True)
+          f"per iteration, lr {args.lr:g}, encoding {args.encoding}, device {args.device}, seed {args.seed}\n",
+          flush=True)
     timings: list[str] = []
     per_scene: dict[str, dict[str, dict[str, float]]] = {}
     if "table1" not in skip:

@@ -12,7 +12,8 @@ from .reconstruct import add_spec_options, print_result, spec_from_args
 #: finishes in about 5 minutes on 2 CPU cores; see docs/usage.md for the measured time.
 DEMO_HEIGHTS = 4
 DEMO_ANGLES = 90
-DEMO_SPEC = {"iters": 300, "grid": 40, "num_bins": 32, "num_rays": 128, "pings_per_batch": 1,
+DEMO_SPEC = {"iters": 300, "grid": 40, "num_bins": 32, "num_rays": 128, "pings_per_batch": 1, "lr": 1e-2,
+             "encoding": "small",
              "device": "auto"}
 
 
