@@ -51,7 +51,7 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 
 def _steps(spec: ReconstructionSpec, method: str) -> int:
-    return 4 if method == "backprojection" else max(1, spec.iters // 10)
+    return 4 if method == "backprojection" else spec.iters
 
 
 def run(spec: ReconstructionSpec, survey: Survey | Path | str, out_dir: Path,

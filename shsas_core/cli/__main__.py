@@ -1,0 +1,7 @@
+"""``python -m shsas_core.cli`` = ``shsas``."""
+
+import sys
+
+from . import main
+
+sys.exit(main())
