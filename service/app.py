@@ -50,9 +50,18 @@ def spec_error(exc: pydantic.ValidationError) -> str:
     return "; ".join(parts)
 
 
-def current_owner(request: Request) -> str:
-    """Dependency: the job owner (API key id, or ``local`` for keyless loopback clients)."""
+async def current_owner(request: Request) -> str:
+    """Dependency: the job owner (API key id, or ``local`` for keyless loopback clients).
+
+    Runs on the event loop: it is one indexed read (< 1 ms), and a thread hop per request
+    costs more than the query under 100 pollers.
+    """
     return owner_of(request, request.app.state.store)
+
+
+def _json(model: pydantic.BaseModel, status: int = 200) -> Response:
+    # Serialised once here; returning a Response skips FastAPI's second validation pass.
+    return Response(model.model_dump_json(), status_code=status, media_type="application/json")
 
 
 Owner = Annotated[str, Depends(current_owner)]
@@ -159,8 +168,8 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         return JSONResponse(body, status_code=202, headers={"Location": f"/reconstructions/{job.id}"})
 
     @app.get("/reconstructions", response_model=JobPage, responses=ERRORS)
-    def list_jobs(who: Owner, status: Annotated[str | None, Query(description="filter: " + ", ".join(STATUSES))] = None,
-                  cursor: str | None = None, limit: Annotated[int, Query(ge=1, le=1000)] = 50) -> JobPage:
+    async def list_jobs(who: Owner, status: Annotated[str | None, Query(description="filter: " + ", ".join(STATUSES))] = None,
+                  cursor: str | None = None, limit: Annotated[int, Query(ge=1, le=1000)] = 50) -> Response:
         """The caller's jobs, newest first, one page at a time."""
         if status is not None and status not in STATUSES:
             raise HTTPException(400, f"status: unknown status {status!r} (one of {', '.join(STATUSES)})")
@@ -169,12 +178,13 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                                          limit=min(limit, settings.page_size_max))
         except ValueError:
             raise HTTPException(400, "cursor: not a cursor this API returned") from None
-        return JobPage(items=[JobOut.from_job(j) for j in items], next_cursor=nxt)
+        return _json(JobPage(items=[JobOut.from_job(j) for j in items], next_cursor=nxt))
 
     @app.get("/reconstructions/{job_id}", response_model=JobOut, responses=ERRORS)
-    def get_job(job_id: str, who: Owner) -> JobOut:
+    async def get_job(job_id: str, who: Owner) -> Response:
         """Status, progress, stage, attempts, timestamps, error, metrics and artifact links."""
-        return JobOut.from_job(job_or_404(job_id, who))
+        # Inline like current_owner: this is the route pollers hit, one indexed read.
+        return _json(JobOut.from_job(job_or_404(job_id, who)))
 
     @app.post("/reconstructions/{job_id}/cancel", response_model=JobOut, status_code=202, responses=ERRORS)
     def cancel_job(job_id: str, who: Owner) -> JobOut:

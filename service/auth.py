@@ -8,6 +8,7 @@ as the embedded single-user default and answers loopback clients only, as owner 
 from __future__ import annotations
 
 import ipaddress
+import time
 
 from fastapi import HTTPException, Request
 
@@ -33,6 +34,22 @@ def is_loopback(host: str | None) -> bool:
         return host == "localhost"
 
 
+#: How long "are any keys active?" is remembered. A key's own validity (revocation) is
+#: checked on every request; only the keyless-loopback mode may outlive the first key by this.
+KEYS_CACHE_S = 1.0
+_keys_cache: dict[int, tuple[float, bool]] = {}
+
+
+def _has_active_keys(store: JobStore) -> bool:
+    now = time.monotonic()
+    hit = _keys_cache.get(id(store))
+    if hit is not None and now - hit[0] < KEYS_CACHE_S:
+        return hit[1]
+    value = store.has_active_keys()
+    _keys_cache[id(store)] = (now, value)
+    return value
+
+
 def owner_of(request: Request, store: JobStore) -> str:
     """The job owner for this request, or HTTPException 401."""
     token = _token(request)
@@ -41,7 +58,7 @@ def owner_of(request: Request, store: JobStore) -> str:
         if owner is None:
             raise HTTPException(401, "invalid or revoked API key", headers={"WWW-Authenticate": "Bearer"})
         return owner
-    if store.has_active_keys():
+    if _has_active_keys(store):
         raise HTTPException(401, "API key required (Authorization: Bearer <key>)",
                             headers={"WWW-Authenticate": "Bearer"})
     if is_loopback(request.client.host if request.client else None):
