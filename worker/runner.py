@@ -80,11 +80,7 @@ class JobControl:
 
     def _beat(self) -> None:
         while not self._stop.wait(self.settings.heartbeat_interval_s):
-            try:
-                with self._lock:
-                    self._apply(*self.store.heartbeat(self.job_id, self.owner))
-            except Exception:  # a DB blip must not kill the job; the lease tolerates a few misses
-                log.exception("heartbeat of job %s failed", self.job_id)
+            self._write()  # the lease tolerates a few missed beats
             if time.monotonic() - self._t0 > self.settings.job_hard_time_limit_s:
                 log.error("job %s passed the hard time limit; ending the worker process", self.job_id)
                 self.store.finish(self.job_id, self.owner, "failed", error=self._limit_message("hard"))
@@ -100,9 +96,14 @@ class JobControl:
             return
         self._stage, self._last_write = stage, now
         live = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float)}
-        with self._lock:
-            self._apply(*self.store.heartbeat(self.job_id, self.owner, progress=fraction, stage=stage,
-                                              live_metrics=live))
+        self._write(progress=fraction, stage=stage, live_metrics=live)
+
+    def _write(self, **values) -> None:
+        try:
+            with self._lock:
+                self._apply(*self.store.heartbeat(self.job_id, self.owner, **values))
+        except Exception:  # a DB blip must not fail the job; the next call tries again
+            log.warning("job %s: could not write progress/heartbeat", self.job_id, exc_info=True)
 
     def should_stop(self) -> bool:
         now = time.monotonic()
@@ -110,8 +111,7 @@ class JobControl:
             self.timed_out = True
         if now - self._last_poll >= CANCEL_POLL_S:
             self._last_poll = now
-            with self._lock:
-                self._apply(*self.store.heartbeat(self.job_id, self.owner))
+            self._write()
         return self.cancel or self.lost_lease or self.timed_out
 
 
@@ -177,7 +177,8 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
             store.finish(job.id, owner, "failed", error="the job ran out of memory (try a smaller grid or fewer rays)")
             return "failed"
         artifacts = _checked_artifacts(out_dir, list(result.artifacts))
-        metrics = {m: {k: float(v) for k, v in d.items()} for m, d in result.metrics.items()}
+        metrics = {m: {k: float(v) for k, v in d.items() if isinstance(v, int | float)}
+                   for m, d in result.metrics.items()}
         ok = store.finish(job.id, owner, "succeeded", artifacts=artifacts, metrics=metrics)
         return "succeeded" if ok else "lost"
     except Exception as exc:  # report, never crash the worker on one bad job
