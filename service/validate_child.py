@@ -60,6 +60,19 @@ def main() -> int:
     resource.setrlimit(resource.RLIMIT_AS, (memory_bytes, memory_bytes))
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 5))
     try:
+        # The readers first, apart: failing here is the limit being too small for the
+        # validator itself, not the file's fault.
+        import h5py  # noqa: F401
+        import numpy  # noqa: F401
+
+        import shsas_core.importers
+        import shsas_core.io  # noqa: F401
+    except (ImportError, MemoryError, OSError) as exc:
+        sys.stdout.write(json.dumps({"ok": False, "status": 413, "error": (
+            "survey: the validator cannot start within SHSAS_VALIDATE_MEMORY_BYTES="
+            f"{memory_bytes}; raise it ({type(exc).__name__})")}) + "\n")
+        return 0
+    try:
         from shsas_core.errors import ShsasError
 
         try:

@@ -32,7 +32,7 @@ class Settings(BaseSettings):
     auto_device_queue: str = Field("gpu", pattern=r"^(gpu|cpu)$",
                                    description="which queue takes jobs whose spec says device=auto")
     max_upload_bytes: int = Field(4 * GiB, ge=1, description="survey upload cap; larger uploads get 413")
-    validate_memory_bytes: int = Field(4 * GiB, ge=256 * 1024**2,
+    validate_memory_bytes: int = Field(4 * GiB, ge=512 * 1024**2,
                                        description="address-space limit of the survey validation process")
     validate_timeout_s: float = Field(300.0, gt=0, description="time limit of the survey validation process")
     job_soft_time_limit_s: float = Field(6 * 3600.0, gt=0, description="a job past this is stopped and failed")

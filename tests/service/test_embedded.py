@@ -26,6 +26,7 @@ QUICK_SPEC = {"methods": ["backprojection"], "grid": 16, "device": "cpu"}
 #: Long enough that a cancel always lands mid-run.
 LONG_SPEC = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
 UPLOAD_CAP = 2_000_000
+VALIDATE_MEMORY = 512 * 1024**2
 
 
 @pytest.fixture(scope="module", params=["sqlite", "postgres"])
@@ -33,6 +34,7 @@ def server(request, tmp_path_factory):
     tmp = tmp_path_factory.mktemp(f"embedded-{request.param}")
     pg = request.getfixturevalue("pg_url") if request.param == "postgres" else None
     env = {"SHSAS_DATA_DIR": str(tmp / "data"), "SHSAS_MAX_UPLOAD_BYTES": str(UPLOAD_CAP),
+           "SHSAS_VALIDATE_MEMORY_BYTES": str(VALIDATE_MEMORY),
            **FAST_TIMINGS, **db_env(request.param, pg)}
     proc, base = start_server(tmp, env)
     yield {"base": base, "data": tmp / "data", "proc": proc, "backend": request.param}
@@ -172,6 +174,13 @@ def _bad_cases(tmp: Path, good: Path) -> list[tuple[str, dict, int, str]]:
     def external(f):
         f["pings/extra"] = h5py.ExternalLink("/etc/passwd", "/data")
 
+    def bomb(f):
+        # 240 MB of vertices in a ~20 kB file (never-written gzip chunks read as the fill value).
+        g = f.create_group("ground_truth")
+        for name, dtype in (("vertices", "f8"), ("faces", "i8")):
+            g.create_dataset(name, shape=(10_000_000, 3), dtype=dtype, chunks=(1 << 18, 3),
+                             compression="gzip", fillvalue=0)
+
     return [
         ("not hdf5", {"files": files(text, "notes.txt"), "data": spec}, 422, "not a recognised survey"),
         ("truncated", {"files": files(truncated), "data": spec}, 422, "truncated"),
@@ -183,6 +192,8 @@ def _bad_cases(tmp: Path, good: Path) -> list[tuple[str, dict, int, str]]:
          422, "non-finite"),
         ("external link", {"files": files(_h5_variant(tmp / "ext.h5", good, external)), "data": spec},
          422, "external link"),
+        ("decompression bomb", {"files": files(_h5_variant(tmp / "bomb.h5", good, bomb)), "data": spec},
+         413, "SHSAS_VALIDATE_MEMORY_BYTES"),
         ("over size cap", {"files": files(b"\x89HDF\r\n\x1a\n" + bytes(UPLOAD_CAP + 1000)), "data": spec},
          413, "SHSAS_MAX_UPLOAD_BYTES"),
         ("empty file", {"files": files(b""), "data": spec}, 422, "empty"),
