@@ -30,7 +30,7 @@ from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress
 from .spec import ReconstructionSpec
 from .survey import Survey
 
-STEP_SECONDS = 0.02  # per "iteration" of the stand-in, so tests can catch a job mid-run
+STEP_SECONDS = 0.1  # per "iteration": about the real pipeline's CPU speed on a tiny survey, so tests catch jobs mid-run
 CHECKPOINT_EVERY = 10
 
 

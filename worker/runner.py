@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import shutil
 import socket
 import threading
@@ -115,12 +116,16 @@ class JobControl:
         return self.cancel or self.lost_lease or self.timed_out
 
 
+#: Names of half-written files: ``x.tmp``, ``.x.<pid>.tmp`` (export) and ``x.tmp<pid>`` (train).
+PARTIAL = re.compile(r"\.tmp\d*$")
+
+
 def remove_partials(out_dir: Path) -> None:
-    """Delete half-written files (``*.tmp``) a killed run left behind; keep checkpoints."""
+    """Delete half-written files a killed run left behind (see :data:`PARTIAL`); keep the rest."""
     if not out_dir.is_dir():
         return
-    for p in out_dir.rglob("*.tmp"):
-        if p.is_file():
+    for p in out_dir.rglob("*.tmp*"):
+        if p.is_file() and PARTIAL.search(p.name):
             p.unlink(missing_ok=True)
 
 
@@ -128,7 +133,7 @@ def _checked_artifacts(out_dir: Path, names: list[str]) -> list[str]:
     """Artifact names as the API will serve them: plain file names that exist, no repeats."""
     seen: list[str] = []
     for name in names:
-        if Path(name).name != name or name.startswith(".") or name.endswith(".tmp"):
+        if Path(name).name != name or name.startswith(".") or PARTIAL.search(name):
             raise RuntimeError(f"pipeline returned an artifact name that is not a plain file name: {name!r}")
         if not (out_dir / name).is_file():
             raise RuntimeError(f"pipeline listed artifact {name!r} but did not write it")

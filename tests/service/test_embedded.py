@@ -47,18 +47,28 @@ def client(server):
         yield c
 
 
-def test_upload_poll_download_meshes(client, server, survey_file: Path) -> None:
-    r = submit(client, survey_file, QUICK_SPEC)
-    assert r.status_code == 202, r.text
+@pytest.fixture(scope="module")
+def done_job(server):
+    """One quick job run to success on this server (shared by the download tests)."""
+    survey = write_tiny_survey(server["data"].parent / "tiny.h5")
+    with httpx.Client(base_url=server["base"], timeout=30) as c:
+        r = submit(c, survey, QUICK_SPEC)
+        assert r.status_code == 202, r.text
+        done = wait_for(c, r.json()["id"], lambda j: j["status"] in ("succeeded", "failed"), 120,
+                        "job to finish")
+    return r, done
+
+
+def test_upload_poll_download_meshes(client, done_job) -> None:
+    r, done = done_job
     job = r.json()
     assert r.headers["location"] == f"/reconstructions/{job['id']}"
     assert job["status"] in ("queued", "running") and job["spec"]["grid"] == 16
-    done = wait_for(client, job["id"], lambda j: j["status"] in ("succeeded", "failed"), 60, "job to finish")
     assert done["status"] == "succeeded", done
     assert done["progress"] == 1.0 and done["attempts"] == 1 and done["error"] is None
     assert done["started_at"] and done["finished_at"] and done["metrics"]
     names = [a["name"] for a in done["artifacts"]]
-    glb = next(n for n in names if n.endswith(".glb"))
+    glb = next(n for n in names if n.endswith("_mesh.glb"))
     ply = next(n for n in names if n.endswith("_mesh.ply"))
     for name, ftype in ((glb, "glb"), (ply, "ply")):
         resp = client.get(f"/reconstructions/{job['id']}/artifacts/{name}")
@@ -72,9 +82,9 @@ def test_upload_poll_download_meshes(client, server, survey_file: Path) -> None:
     assert client.get("/readyz").json()["checks"]["job_store"] == "ok"
 
 
-def test_artifact_range_etag_and_names(client, survey_file: Path) -> None:
-    job = submit(client, survey_file, QUICK_SPEC).json()
-    done = wait_for(client, job["id"], lambda j: j["status"] == "succeeded", 60, "success")
+def test_artifact_range_etag_and_names(client, done_job) -> None:
+    _, done = done_job
+    job = done
     name = next(a["name"] for a in done["artifacts"] if a["name"].endswith(".glb"))
     url = f"/reconstructions/{job['id']}/artifacts/{name}"
     full = client.get(url)
@@ -121,6 +131,7 @@ def test_idempotency_key(client, survey_file: Path, tmp_path: Path) -> None:
     other = write_tiny_survey(tmp_path / "other.h5", seed=5)
     d = submit(client, other, QUICK_SPEC, **{"Idempotency-Key": key})
     assert d.status_code == 409
+    client.post(f"/reconstructions/{a.json()['id']}/cancel")  # no backlog for the next tests
 
 
 def test_list_pagination(client, survey_file: Path) -> None:
@@ -136,6 +147,8 @@ def test_list_pagination(client, survey_file: Path) -> None:
     assert seen[:3] == ids[::-1] and len(seen) == len(set(seen))
     assert client.get("/reconstructions", params={"cursor": "garbage!"}).status_code == 400
     assert client.get("/reconstructions", params={"status": "bogus"}).status_code == 400
+    for job_id in ids:
+        client.post(f"/reconstructions/{job_id}/cancel")
 
 
 # ---- bad uploads: every one a 4xx naming the problem, never a 500 ------------------------------

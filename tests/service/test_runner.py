@@ -64,11 +64,14 @@ def test_success_writes_artifacts_and_removes_stale_tmp(env) -> None:
     _, out_dir = job_paths(settings, job.id)
     out_dir.mkdir(parents=True)
     (out_dir / "shsas_mesh.glb.tmp").write_bytes(b"half a file from a killed run")
+    (out_dir / ".shsas_mesh.ply.123.tmp").write_bytes(b"half")
+    (out_dir / "checkpoints").mkdir()
+    (out_dir / "checkpoints" / "state.pt.tmp4567").write_bytes(b"half")
     assert execute_job(store, settings, job.id, "w1") == "succeeded"
     done = store.get(job.id)
     assert done.status == "succeeded" and done.attempts == 1 and done.progress == 1.0
     assert done.artifacts and all((out_dir / a).is_file() for a in done.artifacts)
-    assert not list(out_dir.rglob("*.tmp"))
+    assert not list(out_dir.rglob("*.tmp*"))
     assert execute_job(store, settings, job.id, "w2") == "skipped"  # a duplicate delivery does nothing
 
 
