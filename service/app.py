@@ -6,10 +6,12 @@ GET .../artifacts and .../artifacts/{name}, /healthz, /readyz (design §6).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import shutil
+import time
 import uuid
 from contextlib import asynccontextmanager
 from typing import Annotated
@@ -67,6 +69,21 @@ def _json(model: pydantic.BaseModel, status: int = 200) -> Response:
 Owner = Annotated[str, Depends(current_owner)]
 
 
+#: Upload folders older than this are leftovers of a crashed API process (other replicas
+#: sharing the data dir may have younger ones in flight).
+STALE_UPLOAD_S = 24 * 3600
+
+
+def _sweep_uploads(root) -> None:
+    if not root.is_dir():
+        return
+    cutoff = time.time() - STALE_UPLOAD_S
+    for d in root.iterdir():
+        with contextlib.suppress(OSError):
+            if d.stat().st_mtime < cutoff:
+                shutil.rmtree(d, ignore_errors=True)
+
+
 def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> FastAPI:
     """Build the app. ``reconcile`` runs the stale-lease reconciler thread in this process."""
     settings = settings or get_settings()
@@ -75,6 +92,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        _sweep_uploads(settings.data_dir / "uploads")
         rec = Reconciler(store, settings).start() if reconcile else None
         yield
         if rec:

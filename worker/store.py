@@ -189,7 +189,14 @@ class JobStore:
         engine = self.engine
         os.register_at_fork(after_in_child=lambda: engine.dispose(close=False))
         if create:
-            metadata.create_all(self.engine)
+            self._create_tables()
+
+    def _create_tables(self) -> None:
+        with self.engine.begin() as conn:
+            if conn.dialect.name == "postgresql":
+                # API replicas and workers start together: serialise CREATE TABLE IF NOT EXISTS.
+                conn.execute(sa.text("SELECT pg_advisory_xact_lock(7274201)"))
+            metadata.create_all(conn)
 
     @classmethod
     def from_settings(cls, settings) -> JobStore:

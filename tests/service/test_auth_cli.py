@@ -57,7 +57,7 @@ def test_keys_own_jobs_and_revocation(tmp_path, survey_file) -> None:
         proc.stop()
 
 
-@pytest.mark.filterwarnings("ignore::DeprecationWarning")
+@pytest.mark.filterwarnings("ignore:Using `httpx` with `starlette.testclient`")
 def test_keyless_default_refuses_non_loopback_clients(tmp_path) -> None:
     from starlette.testclient import TestClient
 
