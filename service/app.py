@@ -174,9 +174,10 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                 await to_thread.run_sync(dispatch, settings, job)
             except Exception as exc:
                 log.exception("could not send job %s to the broker", job.id)
-                raise UploadError(503, f"the job was stored as {job.id} but the broker is unreachable "
-                                       f"({type(exc).__name__}); it will be sent when the reconciler "
-                                       "next finds it stale, or resubmit") from None
+                msg = f"the broker is unreachable ({type(exc).__name__}); nothing was queued, resubmit later"
+                await to_thread.run_sync(store.fail_queued, job.id, msg)
+                shutil.rmtree(in_dir.parent, ignore_errors=True)
+                raise UploadError(503, msg) from None
             return _accepted(job, request)
         finally:
             shutil.rmtree(tmp_dir, ignore_errors=True)

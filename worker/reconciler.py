@@ -7,6 +7,7 @@ job is dispatched again only by the reconciler whose UPDATE won.
 from __future__ import annotations
 
 import logging
+import shutil
 import threading
 
 from .dispatch import dispatch
@@ -27,7 +28,12 @@ def reconcile_once(store: JobStore, settings: Settings) -> tuple[int, int]:
         except Exception:
             log.exception("could not re-send job %s; it stays queued", job.id)
     for job in failed:
-        log.error("job %s failed after %d lost attempts", job.id, job.attempts)
+        if job.cancel_requested:
+            # Cancelled while its worker was gone: drop what that worker left half-done.
+            shutil.rmtree(settings.jobs_dir() / job.id / "out", ignore_errors=True)
+            log.warning("job %s cancelled after its worker was lost", job.id)
+        else:
+            log.error("job %s failed after %d lost attempts", job.id, job.attempts)
     return len(requeued), len(failed)
 
 

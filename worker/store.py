@@ -300,6 +300,15 @@ class JobStore:
                          .values(cancel_requested=True, updated_at=now))
         return self.get(job_id, owner)
 
+    def fail_queued(self, job_id: str, error: str) -> bool:
+        """Fail a job that never left the queue (e.g. its message could not be sent)."""
+        now = time.time()
+        with self._tx() as conn:
+            res = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.status == "queued")
+                               .values(status="failed", error=error, finished_at=now, updated_at=now,
+                                       stage="failed", idempotency_key=None))  # a retry may reuse the key
+        return res.rowcount == 1
+
     def count_by_status(self) -> dict[str, int]:
         with self.engine.connect() as conn:
             rows = conn.execute(sa.select(jobs.c.status, sa.func.count()).group_by(jobs.c.status))

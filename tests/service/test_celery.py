@@ -113,3 +113,22 @@ def test_sigkill_worker_mid_job_then_restart_resumes(client, cluster, survey_fil
     glb = next(n for n in names if n.endswith(".glb"))
     body = client.get(f"/reconstructions/{job['id']}/artifacts/{glb}").content
     assert len(trimesh.load(io.BytesIO(body), file_type="glb", force="mesh").faces) > 0
+
+
+def test_broker_down_answers_503_and_fails_nothing_silently(tmp_path, survey_file) -> None:
+    from .conftest import free_port
+
+    env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), "SHSAS_BROKER_URL": f"redis://127.0.0.1:{free_port()}/0",
+           **FAST_TIMINGS}
+    api, base = start_server(tmp_path, env)
+    try:
+        with httpx.Client(base_url=base, timeout=60) as c:
+            ready = c.get("/readyz")
+            assert ready.status_code == 503 and ready.json()["checks"]["broker"].startswith("error")
+            r = submit(c, survey_file, QUICK_SPEC, **{"Idempotency-Key": "k"})
+            assert r.status_code == 503 and "broker is unreachable" in r.json()["detail"]
+            # Nothing is left queued forever: the job row says what happened.
+            jobs = c.get("/reconstructions").json()["items"]
+            assert [j["status"] for j in jobs] == ["failed"] and "broker" in jobs[0]["error"]
+    finally:
+        api.stop()
