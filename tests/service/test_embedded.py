@@ -234,3 +234,35 @@ def test_bad_uploads_all_4xx_with_message(client, server, survey_file: Path, tmp
     # Nothing half-uploaded is left behind.
     uploads = server["data"] / "uploads"
     assert not uploads.exists() or not any(uploads.iterdir())
+
+
+def _local_worker_pid(serve_pid: int) -> int:
+    """The spawn child of `shsas serve` that runs jobs (not multiprocessing's resource tracker)."""
+    for task in Path(f"/proc/{serve_pid}/task").iterdir():
+        for pid in (task / "children").read_text().split():
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")
+            if b"spawn_main" in cmd:
+                return int(pid)
+    raise AssertionError("no local worker child found")
+
+
+@pytest.mark.slow
+def test_local_worker_killed_mid_job_is_restarted_and_job_resumes(client, server, survey_file: Path) -> None:
+    if server["backend"] != "sqlite":
+        pytest.skip("same code path on both stores; run once")
+    import os
+    import signal
+
+    spec = {"methods": ["reed"], "iters": 60, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
+    job = submit(client, survey_file, spec).json()
+    wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] >= 0.25, 90, "job under way")
+    victim = _local_worker_pid(server["proc"].pid)
+    os.kill(victim, signal.SIGKILL)
+    done = wait_for(client, job["id"], lambda j: j["status"] in ("succeeded", "failed"), 120,
+                    "the supervisor's new local worker to finish the job")
+    assert done["status"] == "succeeded" and done["attempts"] == 2, done
+    assert _local_worker_pid(server["proc"].pid) != victim
+    out = server["data"] / "jobs" / job["id"] / "out"
+    assert not list(out.rglob("*.tmp*"))
+    names = [a["name"] for a in done["artifacts"]]
+    assert sorted(names) == sorted(p.name for p in out.iterdir() if p.is_file())
