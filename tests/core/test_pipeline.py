@@ -116,3 +116,16 @@ def test_neural_methods_end_to_end_with_holdout_and_resume(tmp_path, sphere_surv
         vol = read_volume_npy(tmp_path / m.artifacts["volume"])
         assert vol.values.dtype == np.float32 and vol.grid.shape == (12, 12, 12)
     assert set(res.metrics) == {"reed", "shsas"} and "pc_chamfer_l2" in res.metrics["shsas"]
+
+
+def test_spec_maps_onto_trainer_and_encoding():
+    from shsas_core.fields import PAPER_GPU_ENCODING
+    from shsas_core.pipeline import encoding_config, train_config
+
+    spec = ReconstructionSpec(iters=250, lr=0.02, num_bins=7, num_rays=9, pings_per_batch=3, seed=5)
+    cfg = train_config(spec)
+    assert (cfg.iters, cfg.lr, cfg.num_bins, cfg.num_rays, cfg.pings_per_batch, cfg.seed) == (250, 0.02, 7, 9, 3, 5)
+    assert cfg.checkpoint_every == 25
+    assert encoding_config("paper_gpu") == PAPER_GPU_ENCODING
+    small = encoding_config("small")
+    assert (small.n_levels, small.log2_table_size, small.finest_resolution) == (8, 13, 128)
