@@ -2,7 +2,9 @@
 
 Both backprojection images (complex ``|I|``) and neural fields (``|σ_DC|`` sampled on a grid by
 :func:`field_volume`) arrive here as a :class:`~shsas_core.volume.Volume`. The magnitude is
-normalised to [0, 1] by its maximum; the iso level τ is then the same number for every method.
+normalised to [0, 1] by its range (``(m - min) / (max - min)``, :func:`normalize`), so the iso
+level τ means the same for every method: a neural field's non-zero floor (fog) maps to 0 just
+like a backprojection image's near-zero background.
 
 Default τ (``ExtractConfig.rule = "otsu"``): Otsu's threshold of the normalised magnitude over the
 whole grid, clipped to ``[tau_min, tau_max]``. Otsu picks the level that best splits the histogram
@@ -91,6 +93,17 @@ def field_volume(field: Any, grid: Grid, chunk: int = 65536, name: str = "") -> 
     return Volume(grid, out.reshape(grid.shape), name=name or "|sigma_DC|")
 
 
+def normalize(volume: Volume) -> np.ndarray:
+    """``grid.shape`` float32 magnitude scaled to [0, 1] by its range (a constant volume gives 0)."""
+    m = volume.magnitude()
+    if m.size == 0:
+        return m
+    lo, hi = float(m.min()), float(m.max())
+    if not hi > lo:
+        return np.zeros_like(m)
+    return ((m - lo) / (hi - lo)).astype(np.float32)
+
+
 def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
     """Otsu's threshold of ``values`` (any shape): the level maximising between-class variance."""
     from skimage.filters import threshold_otsu
@@ -106,7 +119,7 @@ def choose_threshold(volume: Volume, config: ExtractConfig | None = None) -> flo
     cfg = config or ExtractConfig()
     if cfg.threshold is not None:
         return float(cfg.threshold)
-    norm = volume.normalized()
+    norm = normalize(volume)
     if cfg.rule == "otsu":
         tau = otsu_threshold(norm)
     else:
@@ -121,7 +134,7 @@ def point_cloud(volume: Volume, tau: float) -> PointCloud:
         PointCloud with (P, 3) survey-frame centres, m, and their normalised magnitudes.
     """
     _check_tau(tau)
-    norm = volume.normalized()
+    norm = normalize(volume)
     idx = np.argwhere(norm >= tau)
     lo, d = np.asarray(volume.grid.box_min), volume.grid.spacing
     pts = lo + (idx + 0.5) * d
@@ -142,7 +155,7 @@ def mesh(volume: Volume, tau: float, close_boundary: bool = True):
     from skimage.measure import marching_cubes
 
     _check_tau(tau)
-    norm = volume.normalized()
+    norm = normalize(volume)
     if norm.size == 0 or float(norm.max()) < tau or (min(norm.shape) < 2 and not close_boundary):
         return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
     pad = 1 if close_boundary else 0

@@ -137,12 +137,14 @@ def _plt():
 def mip_figure(volumes: dict[str, Volume]) -> bytes:
     """PNG: one row per method, maximum-intensity projections along x, y and z of the
     normalised magnitude, in survey-frame metres."""
+    from .extract import normalize
+
     plt = _plt()
     names = list(volumes)
     fig, axes = plt.subplots(len(names), 3, figsize=(10, 3.1 * len(names)), squeeze=False)
     for r, name in enumerate(names):
         vol = volumes[name]
-        n = vol.normalized()
+        n = normalize(vol)
         lo, hi = np.asarray(vol.grid.box_min), np.asarray(vol.grid.box_max)
         for c, (axis, (a, b)) in enumerate(zip((0, 1, 2), ((1, 2), (0, 2), (0, 1)), strict=True)):
             img = n.max(axis=axis)  # dims (a, b)

@@ -11,6 +11,7 @@ from shsas_core.extract import (
     extract,
     field_volume,
     mesh,
+    normalize,
     otsu_threshold,
     point_cloud,
     threshold_sweep,
@@ -68,14 +69,18 @@ def test_threshold_rules():
     vals = np.where(bright, 0.8, 0.1) + 0.01 * rng.standard_normal(g.shape)
     vol = Volume(g, np.abs(vals).astype(np.float32))
     tau = choose_threshold(vol)
-    n = vol.normalized()
+    n = normalize(vol)
     # Otsu splits the two classes (up to one of its 256 histogram bins)
     assert n[bright].min() >= tau
     assert n[~bright].max() < tau + (n.max() - n.min()) / 256
-    assert otsu_threshold(vol.normalized()) == pytest.approx(tau)
+    assert otsu_threshold(normalize(vol)) == pytest.approx(tau)
     assert choose_threshold(vol, ExtractConfig(threshold=0.42)) == 0.42
     t99 = choose_threshold(vol, ExtractConfig(rule="percentile", percentile=99, tau_max=0.999))
-    assert np.mean(vol.normalized() >= t99) == pytest.approx(0.01, abs=0.002)
+    assert np.mean(normalize(vol) >= t99) == pytest.approx(0.01, abs=0.002)
+    # range normalisation: an offset (fog) does not change the rule's selection
+    fog = Volume(g, (vol.values + 5.0).astype(np.float32))
+    assert choose_threshold(fog) == pytest.approx(tau, abs=1e-6)
+    np.testing.assert_allclose(normalize(fog), normalize(vol), atol=1e-5)
     flat = Volume(g, np.zeros(g.shape, np.float32))
     assert choose_threshold(flat) == ExtractConfig().tau_min
     with pytest.raises(ShsasError):
