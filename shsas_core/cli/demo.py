@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from .reconstruct import add_spec_options, print_result, spec_from_args
+from .reconstruct import add_spec_options, console, print_result, spec_from_args
 
 #: CPU-scale defaults, chosen so the whole demo (simulation, three methods, metrics, report)
 #: finishes in about 5 minutes on 2 CPU cores; see docs/usage.md for the measured time.
@@ -39,14 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
     from ..io import write_survey
     from ..pipeline import run as run_pipeline
     from ..progress import TqdmProgress
     from ..simulate import simulate_shape
 
-    con = Console()
+    con = console()
     spec = spec_from_args(args, **DEMO_SPEC)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

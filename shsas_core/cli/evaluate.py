@@ -148,9 +148,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({k: finite_or_none(v) for k, v in res.items()}, indent=2))
         return 0
-    from rich.console import Console
+    from .reconstruct import console, metrics_table
 
-    from .reconstruct import metrics_table
-
-    Console().print(metrics_table(res, title=f"evaluation of {args.target} against {args.gt}"))
+    console().print(metrics_table(res, title=f"evaluation of {args.target} against {args.gt}"))
     return 0

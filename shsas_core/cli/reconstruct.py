@@ -95,9 +95,7 @@ def run(args: argparse.Namespace) -> int:
 
 def print_result(result) -> None:
     """The metrics table (when there are metrics) and where the outputs are."""
-    from rich.console import Console
-
-    con = Console()
+    con = console()
     if any(k.startswith(("pc_", "mesh_")) for m in result.metrics.values() for k in m):
         con.print(metrics_table(result.metrics))
     else:
@@ -106,6 +104,14 @@ def print_result(result) -> None:
     con.print(f"outputs in [bold]{out}[/bold]: {', '.join(result.artifacts)}")
     con.print(f"report: [bold]{result.report_html}[/bold]")
     con.print("timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.timings.items()))
+
+
+def console():
+    """A rich console; wide enough for the metrics table when output goes to a file or pipe."""
+    from rich.console import Console
+
+    con = Console()
+    return con if con.is_terminal else Console(width=160)
 
 
 def metrics_table(metrics: Mapping[str, Mapping[str, float]], title: str = "metrics (design §5)"):
