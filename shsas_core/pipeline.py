@@ -53,6 +53,8 @@ from .volume import Grid, Volume
 
 #: Relative cost of each stage, for the overall progress fraction.
 _WEIGHTS = {"deconvolution": 0.05, "backprojection": 0.15, "reed": 1.0, "shsas": 1.0, "report": 0.05}
+#: Bump when extraction changes: finished runs then re-extract from their saved volumes.
+EXTRACT_VERSION = 2
 #: Pings whose signal fit is drawn in the report.
 _FIT_PINGS = 3
 #: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
@@ -230,7 +232,9 @@ def _rewrite_json(report: Report, path: Path) -> None:
 
 def _check_resume_key(ckpt: Path, spec: ReconstructionSpec, survey: Survey) -> None:
     """Clear checkpoints made for another spec or survey, then record this run's key."""
-    key = {"spec": spec.model_dump(mode="json"), "survey": survey_fingerprint(survey)}
+    # the threshold only affects extraction, which is redone from the saved volume (see
+    # _run_method), so changing it keeps the reconstructions
+    key = {"spec": spec.model_dump(mode="json", exclude={"threshold"}), "survey": survey_fingerprint(survey)}
     kp = ckpt / "run_key.json"
     if kp.exists():
         try:
@@ -273,14 +277,22 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
     """Reconstruct, extract, export and score one method (or reload it when already done)."""
     names = artifact_names(method)
     done = ckpt / "done.json"
+    extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION}
     if done.exists() and all((out / n).exists() for n in names.values()):
         rep = MethodReport.model_validate_json(done.read_text())
         vol = read_volume_npy(out / names["volume"])
-        import trimesh
-
-        mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
         fit = _load_fit(ckpt)
-        progress(1.0, method, {"cached": 1.0})
+        if _read_json(ckpt / "extract.json") == extract_key:
+            import trimesh
+
+            mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
+            progress(1.0, method, {"cached": 1.0})
+            return rep, vol, mesh_, fit
+        # reconstruction done, extraction settings (or code) changed: extract again, no refit
+        progress(0.9, method, {"cached": 1.0})
+        t0 = time.perf_counter() - rep.seconds
+        rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, rep.loss_curve,
+                             rep.signal_errors, progress, should_stop)
         return rep, vol, mesh_, fit
 
     ckpt.mkdir(parents=True, exist_ok=True)
@@ -316,6 +328,18 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
         _save_fit(ckpt, fit_fig)
     check_stop(should_stop)
     progress(0.9, method, {})
+    rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, loss_curve,
+                         signal_errs, progress, should_stop)
+    return rep, vol, mesh_, fit_fig
+
+
+def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth | None, out: Path,
+            ckpt: Path, names: dict[str, str], extract_key: dict[str, Any], t0: float,
+            loss_curve: list[tuple[int, float]], signal_errs: dict[str, float], progress: ProgressFn,
+            should_stop: StopFn) -> tuple[MethodReport, Any]:
+    """Extract, export, score, and mark the method done."""
+    from .export import write_text
+
     ecfg = ExtractConfig(threshold=spec.threshold)
     tau, cloud, mesh_ = extract(vol, ecfg)
     write_volume_npy(vol, out / names["volume"])
@@ -330,11 +354,17 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
                        points=len(cloud), faces=len(mesh_.faces), seconds=time.perf_counter() - t0,
                        metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
                        artifacts=names, origin_offset=glb["origin_offset"])
-    from .export import write_text
-
+    write_json(extract_key, ckpt / "extract.json")
     write_text(rep.model_dump_json(indent=2), ckpt / "done.json")
     progress(1.0, method, {})
-    return rep, vol, mesh_, fit_fig
+    return rep, mesh_
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
 
 
 def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,

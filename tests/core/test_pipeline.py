@@ -65,9 +65,20 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     assert res2.metrics == res.metrics
     assert res.metrics["backprojection"]["points"] == rep.methods[0].points == len(pc["x"])
     assert any(m.get("cached") for _, s, m in stages if s == "backprojection")
-    # a different spec clears the checkpoints and recomputes
-    res3 = run(spec.model_copy(update={"threshold": 0.5}), survey, tmp_path)
+    # a new threshold re-extracts from the saved volume without reconstructing again
+    stages.clear()
+    res3 = run(spec.model_copy(update={"threshold": 0.5}), survey, tmp_path,
+               progress=lambda f, s, m: stages.append((f, s, dict(m))))
     assert load_report(res3.report_json).methods[0].threshold == 0.5
+    assert any(m.get("cached") for _, s, m in stages if s == "backprojection")
+    assert res3.metrics["backprojection"]["points"] < res.metrics["backprojection"]["points"]
+    assert read_point_cloud_ply(tmp_path / names["pointcloud"])["scalar_magnitude"].min() >= 0.5
+    # a different reconstruction spec clears the checkpoints and recomputes
+    stages.clear()
+    run(spec.model_copy(update={"grid": 20}), survey, tmp_path,
+        progress=lambda f, s, m: stages.append((f, s, dict(m))))
+    assert not any(m.get("cached") for _, _, m in stages)
+    assert read_volume_npy(tmp_path / names["volume"]).grid.shape == (20, 20, 20)
 
 
 def test_cancel_between_steps(tmp_path, sphere_survey):
