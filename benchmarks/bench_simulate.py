@@ -11,6 +11,7 @@ the matched-filter peak error of random point geometries.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import time
@@ -98,9 +99,9 @@ def main() -> None:
     n = heights * args.angles
     print(f"mesh: {len(mesh.faces)} faces, area {mesh.area:.4f} m²; pings: {n} "
           f"({heights} x {args.angles}); ray backend: {'embree' if trimesh.ray.has_embree else 'triangle'}")
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     s = simulate(mesh, cfg)
-    dt = time.perf_counter() - t
+    dt, cpu = time.perf_counter() - t, time.process_time() - cpu
     a = s.meta.attrs
     pairs = a["num_scatterers"] * n
     print(f"survey: {s.num_pings} x {s.num_samples} samples, {a['num_scatterers']} surface points "
@@ -108,6 +109,8 @@ def main() -> None:
     print(f"time: {dt:.1f} s   pings/s: {n / dt:.0f}   point-ping pairs/s: {pairs / dt / 1e6:.2f} M   "
           f"visible contributions/s: {a['visible_contributions'] / dt / 1e6:.2f} M "
           f"({a['visible_contributions'] / pairs:.1%} of pairs visible)")
+    # CPU time (all threads) is less sensitive than wall time to other jobs on a shared machine
+    print(f"cpu time: {cpu:.1f} s (all threads)   load average now: {os.getloadavg()[0]:.1f}")
     if args.write:
         t = time.perf_counter()
         from shsas_core.io import write_survey

@@ -14,6 +14,8 @@ its own. Usage:
         [--threads T] [--encoding cpu|paper_gpu]
 
 Cases: ``cpu`` = 1 ping x 64 bins x 1024 rays, ``paper`` = 1 ping x 200 bins x 4800 rays; L = 3.
+``--renderer-only`` swaps the neural field for a cheap analytic one (a Gaussian shell with
+autograd normals) to time the renderer's own part (intersection, transmittance, quadrature).
 Prints a table; never asserts.
 """
 
@@ -61,8 +63,11 @@ def _one(args: argparse.Namespace) -> dict:
     survey = Survey(tx=tx, rx=rx, samples=sig.real.copy(), t0=np.full(n, 1.5 / 343), meta=meta,
                     pulse=default_pulse(meta))
     torch.manual_seed(0)
-    field = SHField(FieldConfig(sh_degree=3, encoding=encoding_preset(args.encoding), scene_box=box,
-                                fast=fast)).to(dev)
+    if args.renderer_only:
+        field = _ShellField().to(dev)
+    else:
+        field = SHField(FieldConfig(sh_degree=3, encoding=encoding_preset(args.encoding), scene_box=box,
+                                    fast=fast)).to(dev)
     cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device,
                       render=RenderConfig(fast=fast, uniform_fraction=1.0))
     data = _prepare(survey, sig, None, cfg.uniform_fraction)
@@ -100,6 +105,32 @@ def _one(args: argparse.Namespace) -> dict:
             "ms_min": 1e3 * float(np.min(times)), "peak_mib": peak}
 
 
+class _ShellField:
+    """Cheap analytic stand-in with the field interface (renderer-only timing)."""
+
+    def __new__(cls):
+        import torch
+
+        class Shell(torch.nn.Module):
+            def __init__(self) -> None:
+                super().__init__()
+                self.amp = torch.nn.Parameter(torch.tensor(5.0))
+
+            def forward(self, x, dirs, with_normals=True, create_graph=None):
+                create_graph = torch.is_grad_enabled() if create_graph is None else create_graph
+                with torch.enable_grad():
+                    xg = x if x.requires_grad else x.detach().requires_grad_(True)
+                    c = torch.tensor([0.0, 0.0, 0.1], device=x.device)
+                    mag = self.amp * torch.exp(-0.5 * (((xg - c).norm(dim=-1) - 0.05) / 0.01) ** 2)
+                    out = {"density": mag, "scattering": torch.polar(mag, 40.0 * xg[:, 0])}
+                    if with_normals:
+                        (g,) = torch.autograd.grad(mag.sum(), xg, create_graph=create_graph)
+                        out["normals"] = -torch.nn.functional.normalize(g, dim=-1)
+                return out
+
+        return Shell()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default="cpu")
@@ -108,6 +139,8 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=1)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--encoding", default=None, help="hash preset (default: cpu on CPU, paper_gpu on CUDA)")
+    ap.add_argument("--modes", default="fast,eager", help="which paths to run (fast, eager or both)")
+    ap.add_argument("--renderer-only", action="store_true", help="analytic field: time the renderer alone")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--mode", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -118,26 +151,32 @@ def main() -> None:
     import torch
 
     print(f"bench_train: device={args.device} threads={args.threads} encoding={args.encoding} "
-          f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations)")
+          f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations)"
+          + (" RENDERER ONLY (analytic field)" if args.renderer_only else ""))
     print(f"{'case':<7}{'bins x rays':>14}{'points':>10}{'fast ms':>10}{'eager ms':>10}{'speed-up':>10}"
           f"{'fast MiB':>10}{'eager MiB':>11}")
     for case in args.cases.split(","):
         res = {}
-        for mode in ("fast", "eager"):
+        for mode in args.modes.split(","):
             cmd = [sys.executable, __file__, "--case", case, "--mode", mode, "--device", args.device,
                    "--iters", str(args.iters), "--warmup", str(args.warmup), "--threads", str(args.threads),
-                   "--encoding", args.encoding]
+                   "--encoding", args.encoding] + (["--renderer-only"] if args.renderer_only else [])
             out = subprocess.run(cmd, capture_output=True, text=True)
             if out.returncode != 0:
                 print(f"{case} {mode} failed: {out.stderr.strip().splitlines()[-1:]}")
                 break
             res[mode] = json.loads(out.stdout.strip().splitlines()[-1])
-        if len(res) < 2:
-            continue
         b, r = CASES[case]
-        f, e = res["fast"], res["eager"]
-        print(f"{case:<7}{f'{b} x {r}':>14}{f['points']:>10}{f['ms_median']:>10.0f}{e['ms_median']:>10.0f}"
-              f"{e['ms_median'] / f['ms_median']:>9.2f}x{f['peak_mib']:>10.0f}{e['peak_mib']:>11.0f}")
+        f, e = res.get("fast"), res.get("eager")
+
+        def col(d: dict | None, key: str, fmt: str) -> str:
+            return format(d[key], fmt) if d else "-"
+
+        ratio = f"{e['ms_median'] / f['ms_median']:.2f}x" if f and e else "-"
+        pts = (f or e or {"points": b * r})["points"]
+        print(f"{case:<7}{f'{b} x {r}':>14}{pts:>10}{col(f, 'ms_median', '.0f'):>10}"
+              f"{col(e, 'ms_median', '.0f'):>10}{ratio:>10}{col(f, 'peak_mib', '.0f'):>10}"
+              f"{col(e, 'peak_mib', '.0f'):>11}")
 
 
 if __name__ == "__main__":

@@ -49,10 +49,23 @@ class BackprojectionConfig(BaseModel):
         "restore the phase per voxel: far more accurate linear interpolation at low fs/f_c")
     use_beams: bool = Field(True, description="apply TX/RX beam cones when the survey has them")
     crop: bool = Field(True, description="drop samples outside the grid's range window first")
-    voxel_block: int = Field(16384, ge=1, le=1 << 24, description="voxels per kernel call")
-    ping_chunk: int = Field(256, ge=1, le=1 << 20, description="pings per kernel call")
+    voxel_block: int | None = Field(
+        None, ge=1, le=1 << 24, description="voxels per kernel call (None: 16384, or 262144 for "
+        "the compiled kernel on CUDA)")
+    ping_chunk: int | None = Field(
+        None, ge=1, le=1 << 20, description="pings per kernel call (None: 256, or 1024 for the "
+        "compiled kernel on CUDA)")
+
+    def blocks(self, device: torch.device, compiled: bool) -> tuple[int, int]:
+        """(voxel_block, ping_chunk) for a device. The compiled kernel holds no (voxels x pings)
+        temporaries, so on a GPU it takes large blocks (fewer launches); the eager kernel
+        materialises ~30 of them and keeps CPU-sized blocks everywhere (about 0.5 GB)."""
+        big = compiled and device.type == "cuda"
+        return (self.voxel_block or (262_144 if big else 16_384),
+                self.ping_chunk or (1024 if big else 256))
     backend: Literal["auto", "compiled", "eager"] = Field(
-        "auto", description="compiled = torch.compile kernel; auto falls back to eager if it fails")
+        "auto", description="compiled = torch.compile kernel; auto compiles for large problems "
+        "(>= 5e7 voxel-pings) and falls back to eager if compilation is unavailable")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,7 +98,9 @@ class Beams:
 
 
 def _bp_block(
-    pts: torch.Tensor,
+    px: torch.Tensor,
+    py: torch.Tensor,
+    pz: torch.Tensor,
     tx: torch.Tensor,
     rx: torch.Tensor,
     a: torch.Tensor,
@@ -100,42 +115,48 @@ def _bp_block(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Sum over one chunk of pings for one block of voxels.
 
+    Layouts are chosen for the compiled loop: coordinates as separate contiguous vectors (one
+    vector load per coordinate instead of strided gathers), per-ping values as rows of (4, N)
+    tables, the signals as one flat float array with re/im interleaved so a linear
+    interpolation reads 4 neighbouring floats, and int32 sample indices.
+
     Args:
-        pts: (V, 3) float32 points, m (relative to a local origin).
-        tx, rx: (N, 3) float32 sensor positions in the same frame.
-        a: (N,) float32 fractional sample index of time 0 offset: ``t0 · fs``.
-        sig: (N, T + 1, 2) float32 signal real/imag with one zero sample appended.
+        px, py, pz: (V,) float32 voxel coordinates, m (relative to a local origin).
+        tx, rx: (3, N) float32 sensor positions in the same frame.
+        a: (N,) float32 sample index of time 0: ``t0 · fs`` (so the index is ``d·k - a``).
+        sig: (N·(T+1)·2,) float32 flat signals, re/im interleaved, one zero sample appended.
         k: () ``fs / c`` samples per metre of two-way path.
         phase_k: () ``2π f_c / c`` rad per metre (used when ``with_phase``).
-        txd, rxd: (N, 4) unit pointing vector and cos(half angle) (used when ``with_beams``).
+        txd, rxd: (4, N) unit pointing vector and cos(half angle) (used when ``with_beams``).
     Returns:
         (V,) real and imaginary sums.
     """
-    n, t1, _ = sig.shape
+    n = a.shape[0]
+    t1 = sig.shape[0] // (2 * n)
     t = t1 - 1
-    dt = torch.sqrt(((pts[:, None, :] - tx[None, :, :]) ** 2).sum(-1))  # (V, N)
-    dr = torch.sqrt(((pts[:, None, :] - rx[None, :, :]) ** 2).sum(-1))
+    x, y, z = px[:, None], py[:, None], pz[:, None]
+    ex, ey, ez = x - tx[0], y - tx[1], z - tx[2]
+    fx, fy, fz = x - rx[0], y - rx[1], z - rx[2]
+    dt = torch.sqrt(ex * ex + ey * ey + ez * ez)  # (V, N), fused away when compiled
+    dr = torch.sqrt(fx * fx + fy * fy + fz * fz)
     d = dt + dr
-    idx = d * k - a[None, :]
+    idx = d * k - a
     valid = (idx >= 0) & (idx <= t - 1)
     if with_beams:
-        ct = ((pts[:, None, :] - tx[None, :, :]) * txd[None, :, :3]).sum(-1)
-        cr = ((pts[:, None, :] - rx[None, :, :]) * rxd[None, :, :3]).sum(-1)
-        valid = valid & (ct >= txd[None, :, 3] * dt) & (cr >= rxd[None, :, 3] * dr)
-    row = (torch.arange(n, device=pts.device, dtype=torch.int64) * t1)[None, :]
-    flat = sig.reshape(-1, 2)
-    if nearest:
-        i0 = torch.floor(idx).clamp(0, t - 1).to(torch.int64)
-        v = flat[row + i0]
-        re, im = v[..., 0], v[..., 1]
-    else:
-        fl = torch.floor(idx).clamp(0, t - 1)
-        w = (idx - fl).clamp(0, 1)
-        i0 = row + fl.to(torch.int64)
-        v0 = flat[i0]
-        v1 = flat[i0 + 1]
-        re = v0[..., 0] + w * (v1[..., 0] - v0[..., 0])
-        im = v0[..., 1] + w * (v1[..., 1] - v0[..., 1])
+        ct = ex * txd[0] + ey * txd[1] + ez * txd[2]
+        cr = fx * rxd[0] + fy * rxd[1] + fz * rxd[2]
+        valid = valid & (ct >= txd[3] * dt) & (cr >= rxd[3] * dr)
+    fl = torch.floor(idx).clamp(0, t - 1)
+    base = (fl.to(torch.int32) + torch.arange(n, dtype=torch.int32, device=a.device) * t1) * 2
+    # Indices are clamped into range above, so the unchecked gather is safe (and lets the
+    # compiler drop the bounds checks and negative-index wrapping of ordinary indexing).
+    gather = torch.ops.aten._unsafe_index
+    re = gather(sig, [base])
+    im = gather(sig, [base + 1])
+    if not nearest:
+        w = idx - fl
+        re = re + w * (gather(sig, [base + 2]) - re)
+        im = im + w * (gather(sig, [base + 3]) - im)
     zero = torch.zeros((), dtype=re.dtype, device=re.device)
     re = torch.where(valid, re, zero)
     im = torch.where(valid, im, zero)
@@ -148,21 +169,40 @@ def _bp_block(
 
 _COMPILED: dict[str, object] = {}
 
+#: With backend "auto", problems below this many voxel-pings run eagerly: compilation takes
+#: ~10-30 s on a 2-core CPU (a few s with a warm inductor cache), won back above ~5e7.
+AUTO_COMPILE_MIN_WORK = 50_000_000
+
 
 def _kernel(backend: str, device: torch.device):
-    """The block kernel: compiled once per process (per device type), eager as fallback."""
+    """The block kernel: ``torch.compile``-d once per process and device type, or eager.
+
+    ``torch.compile`` compiles lazily at the first call, so a failure (no C++ compiler, no
+    Triton) surfaces there; with ``backend="auto"`` the returned callable then falls back to
+    the eager kernel for the rest of the process, with a warning.
+    """
     if backend == "eager":
         return _bp_block
     key = device.type
     if key not in _COMPILED:
+        _COMPILED[key] = torch.compile(_bp_block, dynamic=False, fullgraph=True)
+    compiled = _COMPILED[key]
+    if backend == "compiled":
+        return compiled
+
+    def guarded(*args):
+        fn = _COMPILED[key]
+        if fn is _bp_block:
+            return _bp_block(*args)
         try:
-            _COMPILED[key] = torch.compile(_bp_block, dynamic=False, fullgraph=True)
-        except Exception as exc:  # torch.compile unavailable on this platform
-            if backend == "compiled":
-                raise ShsasError(f"backprojection: torch.compile failed ({exc})") from exc
-            log.warning("torch.compile unavailable (%s); using the eager kernel", exc)
+            return fn(*args)
+        except Exception as exc:  # compiler toolchain missing or unsupported platform
+            log.warning("torch.compile failed (%s); using the eager backprojection kernel",
+                        str(exc).splitlines()[0][:200])
             _COMPILED[key] = _bp_block
-    return _COMPILED[key]
+            return _bp_block(*args)
+
+    return guarded
 
 
 # ------------------------------------------------------------------------------------------
@@ -249,7 +289,10 @@ def backproject(
     origin = points.mean(0)
     up = cfg.upsample
     fs_u = fs * up
-    kernel = _kernel(cfg.backend, dev)
+    backend = cfg.backend
+    if backend == "auto" and v_total * n < AUTO_COMPILE_MIN_WORK:
+        backend = "eager"  # compiling costs seconds; small problems finish sooner eagerly
+    kernel = _kernel(backend, dev)
     nearest = cfg.interpolation == "nearest"
     with_phase = carrier_hz is not None
     with_beams = beams is not None
@@ -269,46 +312,52 @@ def backproject(
     k = torch.tensor(fs_u / c, **f32)
     phase_k = torch.tensor(2 * math.pi * (carrier_hz or 0.0) / c, **f32)
 
-    nb = cfg.voxel_block
-    pc = min(cfg.ping_chunk, n)
-    out = np.zeros(v_total, np.complex128)
+    vb, pcs = cfg.blocks(dev, compiled=backend != "eager")
+    nb = min(vb, v_total)
+    pc = min(pcs, n)
+    # float64 accumulators on the device: no host sync per block, no float32 drift over
+    # tens of thousands of pings
+    acc_re = torch.zeros(v_total, dtype=torch.float64, device=dev)
+    acc_im = torch.zeros(v_total, dtype=torch.float64, device=dev)
     chunks = [(a, min(a + pc, n)) for a in range(0, n, pc)]
     total_steps = len(chunks) * math.ceil(v_total / nb)
     step = 0
-    pts_all = torch.as_tensor(points - origin, **f32)
+    # Points padded to whole blocks so every kernel call has the same shape (one compilation).
+    v_pad = math.ceil(v_total / nb) * nb
+    pts_np = np.zeros((3, v_pad))
+    pts_np[:, :v_total] = (points - origin).T
+    pts_all = torch.as_tensor(pts_np, **f32)
     for a, b in chunks:
         check_stop(should_stop)
         m = b - a
-        s = sig[a:b].to(dev)
-        s = upsample_signals(s.to(torch.complex64), up)
+        s = upsample_signals(sig[a:b].to(device=dev, dtype=torch.complex64), up)
         tu = s.shape[1]
-        # Pad pings to a fixed chunk size (zero signal) so the compiled kernel sees one shape.
+        # Pings padded to the chunk size with zero signals, for the same reason.
         buf = torch.zeros((pc, tu + 1, 2), **f32)
-        buf[:m, :tu] = torch.view_as_real(s.to(torch.complex64))
-        pos = np.zeros((pc, 3, 2))
-        pos[:m, :, 0], pos[:m, :, 1] = tx[a:b] - origin, rx[a:b] - origin
-        tx_t = torch.as_tensor(pos[..., 0], **f32)
-        rx_t = torch.as_tensor(pos[..., 1], **f32)
-        a_np = np.zeros(pc)
-        a_np[:m] = t0[a:b] * fs_u
-        a_t = torch.as_tensor(a_np, **f32)
-        txd = np.zeros((pc, 4))
-        rxd = np.zeros((pc, 4))
-        txd[:, 3] = rxd[:, 3] = -2.0
-        txd[:m], rxd[:m] = txd_all[a:b], rxd_all[a:b]
-        txd_t, rxd_t = torch.as_tensor(txd, **f32), torch.as_tensor(rxd, **f32)
+        buf[:m, :tu] = torch.view_as_real(s)
+        tab = np.zeros((4 + 4 + 4 + 4 + 1, pc))
+        tab[0:3, :m] = (tx[a:b] - origin).T
+        tab[4:7, :m] = (rx[a:b] - origin).T
+        tab[8:12, :] = txd_all[:1].T  # padding pings: any valid row (their signal is zero)
+        tab[12:16, :] = rxd_all[:1].T
+        tab[8:12, :m] = txd_all[a:b].T
+        tab[12:16, :m] = rxd_all[a:b].T
+        tab[16, :m] = t0[a:b] * fs_u
+        tab_t = torch.as_tensor(tab, **f32)
+        tx_t, rx_t = tab_t[0:3].contiguous(), tab_t[4:7].contiguous()
+        txd_t, rxd_t = tab_t[8:12].contiguous(), tab_t[12:16].contiguous()
+        a_t = tab_t[16].contiguous()
+        flat = buf.reshape(-1)
         for v0 in range(0, v_total, nb):
             v1 = min(v0 + nb, v_total)
-            p = pts_all[v0:v1]
-            if v1 - v0 < nb and v_total > nb:  # pad the last block to the common shape
-                p = torch.cat([p, p.new_zeros((nb - (v1 - v0), 3))])
-            re, im = kernel(p, tx_t, rx_t, a_t, buf, k, phase_k, txd_t, rxd_t,
+            p = pts_all[:, v0 : v0 + nb]
+            re, im = kernel(p[0], p[1], p[2], tx_t, rx_t, a_t, flat, k, phase_k, txd_t, rxd_t,
                             nearest, with_phase, with_beams)
-            vals = torch.complex(re, im)[: v1 - v0].cpu().numpy()
-            out[v0:v1] += vals
+            acc_re[v0:v1] += re[: v1 - v0]
+            acc_im[v0:v1] += im[: v1 - v0]
             step += 1
             progress(step / total_steps, "backprojection", {})
-    return out.astype(np.complex64)
+    return torch.complex(acc_re, acc_im).cpu().numpy().astype(np.complex64)
 
 
 def default_signals(survey: Survey) -> tuple[np.ndarray, str]:

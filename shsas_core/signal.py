@@ -77,14 +77,28 @@ def baseband(signals: np.ndarray, t0: np.ndarray, fs: float, carrier_hz: float) 
     signals = np.asarray(signals)
     if not np.iscomplexobj(signals):
         raise ShsasError("baseband: needs complex analytic samples (call analytic_signal first)")
-    t = np.asarray(t0, dtype=np.float64)[:, None] + np.arange(signals.shape[-1])[None, :] / fs
-    return (signals * np.exp(-2j * np.pi * carrier_hz * t)).astype(np.complex64)
+    return _shift(signals, t0, fs, -carrier_hz)
 
 
 def passband(signals: np.ndarray, t0: np.ndarray, fs: float, carrier_hz: float) -> np.ndarray:
     """Inverse of :func:`baseband`: ``s_b · exp(+j 2π f_c t)``; (N, T) complex64."""
-    t = np.asarray(t0, dtype=np.float64)[:, None] + np.arange(signals.shape[-1])[None, :] / fs
-    return (np.asarray(signals) * np.exp(2j * np.pi * carrier_hz * t)).astype(np.complex64)
+    return _shift(np.asarray(signals), t0, fs, carrier_hz)
+
+
+#: Rows per block in the whole-survey transforms below: bounds the float64/complex128
+#: temporaries (a 43,200-ping survey would otherwise need several GB of them at once).
+ROW_BLOCK = 1024
+
+
+def _shift(signals: np.ndarray, t0: np.ndarray, fs: float, freq: float) -> np.ndarray:
+    """``signals · exp(j 2π freq t)`` on each ping's absolute time axis, block by block."""
+    t0 = np.asarray(t0, dtype=np.float64)
+    k = np.arange(signals.shape[-1]) / fs
+    out = np.empty(signals.shape, np.complex64)
+    for a in range(0, signals.shape[0], ROW_BLOCK):
+        t = t0[a : a + ROW_BLOCK, None] + k[None, :]
+        out[a : a + ROW_BLOCK] = signals[a : a + ROW_BLOCK] * np.exp(2j * np.pi * freq * t)
+    return out
 
 
 def analytic_samples(survey: Survey) -> np.ndarray:
@@ -98,7 +112,10 @@ def analytic_samples(survey: Survey) -> np.ndarray:
     if survey.meta.signal_kind == "real":
         if np.iscomplexobj(s):
             raise ShsasError("pings/samples: complex samples but meta.signal_kind is 'real'")
-        return analytic_signal(s.astype(np.float32))
+        out = np.empty(s.shape, np.complex64)
+        for a in range(0, s.shape[0], ROW_BLOCK):  # bounded temporaries
+            out[a : a + ROW_BLOCK] = analytic_signal(s[a : a + ROW_BLOCK].astype(np.float32))
+        return out
     if not np.iscomplexobj(s):
         raise ShsasError(f"pings/samples: real samples but meta.signal_kind is '{survey.meta.signal_kind}'")
     return s.astype(np.complex64)
@@ -118,8 +135,12 @@ def correlate(signals: np.ndarray, replica: np.ndarray) -> np.ndarray:
     signals = np.atleast_2d(signals)
     t, p = signals.shape[-1], replica.shape[-1]
     nfft = sfft.next_fast_len(t + p - 1)
-    spec = sfft.fft(signals, nfft, axis=-1) * np.conj(sfft.fft(replica, nfft))[None, :]
-    return sfft.ifft(spec, axis=-1)[:, :t].astype(np.complex64)
+    rep = np.conj(sfft.fft(replica, nfft))[None, :]
+    out = np.empty(signals.shape, np.complex64)
+    for a in range(0, signals.shape[0], ROW_BLOCK):
+        spec = sfft.fft(signals[a : a + ROW_BLOCK], nfft, axis=-1) * rep
+        out[a : a + ROW_BLOCK] = sfft.ifft(spec, axis=-1)[:, :t]
+    return out
 
 
 def matched_filter(survey: Survey, signals: np.ndarray | None = None) -> np.ndarray:
@@ -148,7 +169,7 @@ def matched_filter(survey: Survey, signals: np.ndarray | None = None) -> np.ndar
     if not np.iscomplexobj(s):
         # Real data correlated with the analytic replica: exactly the analytic version of the
         # real correlation (its real part is Σ s[k+m] p[m]), with no finite-window Hilbert error.
-        return correlate(s.astype(np.float64), rep)
+        return correlate(s, rep)
     # corr(s_a, p_a) = 2 · analytic(corr(s, p)): halve so real and analytic input agree.
     return (0.5 * correlate(s, rep)).astype(np.complex64)
 

@@ -6,8 +6,8 @@ with transmitter ``o_T``, receiver ``o_R`` and scatterer i at ``x_i`` with norma
     s_n(t) = Σ_i v_in · a_in · p(t - (|x_i - o_T| + |x_i - o_R|) / c)   (+ noise)
 
 ``p`` is the transmitted LFM pulse (band-limited, so a fractional delay is exact), ``v_in`` is 1
-when the point faces and sees both the TX and the RX (shadow rays against the mesh) and 0
-otherwise, and the amplitude is
+when the point faces and sees both the TX and the RX (shadow rays against the mesh) and lies in
+both beam cones (when beam widths are set), 0 otherwise, and the amplitude is
 
     a_in = w_i · (L_in + k_s · max(0, n_i·h)^m) · S_in
 
@@ -54,7 +54,9 @@ __all__ = [
     "ScatteringConfig",
     "SimulationConfig",
     "TrajectoryConfig",
+    "inband_power",
     "measured_snr_db",
+    "pointing",
     "record_window",
     "simulate",
     "simulate_shape",
@@ -81,6 +83,10 @@ class ScatteringConfig(_Cfg):
     random_amplitude: bool = Field(False, description="Rayleigh random amplitude per point, unit mean power")
     two_sided: bool = Field(False, description="surfaces scatter from both sides (open meshes)")
     occlusion: bool = Field(True, description="shadow rays against the mesh (off: every facing point counts)")
+    tx_beamwidth_deg: float | None = Field(
+        None, gt=0, le=360, description="full TX cone angle, degrees; None: omnidirectional")
+    rx_beamwidth_deg: float | None = Field(
+        None, gt=0, le=360, description="full RX cone angle, degrees; None: omnidirectional")
     ray_backend: Literal["auto", "embree", "triangle"] = "auto"
     ray_offset: float = Field(1e-5, ge=0, description="lift of shadow-ray origins along the normal, m")
 
@@ -214,7 +220,11 @@ class _Scene:
         self.sc, self.weight, self.phase, self.cfg, self.occ = sc, weight, phase, cfg, occ
         x = sc.points
         self.xx = np.einsum("ij,ij->i", x, x)
-        self.nx = None if sc.normals is None else np.einsum("ij,ij->i", sc.normals, x)
+        self.xt = np.ascontiguousarray(x.T)
+        self.nx = self.nt = None
+        if sc.normals is not None:
+            self.nx = np.einsum("ij,ij->i", sc.normals, x)
+            self.nt = np.ascontiguousarray(sc.normals.T)
         self.start = self.start_back = None
         if occ is not None:
             # shadow rays leave from just above the surface so they do not hit their own face
@@ -226,13 +236,26 @@ class _Scene:
                     self.start_back = occ.to_frame(x - cfg.ray_offset * sc.normals)
 
 
-def _norm(v: np.ndarray) -> np.ndarray:
-    """Row norms of (K, 3) vectors (einsum: cheaper than linalg.norm here)."""
-    return np.sqrt(np.einsum("ij,ij->i", v, v))
+def _pair_dot(p: np.ndarray, vt: np.ndarray) -> np.ndarray:
+    """(B, M) dot products of sensors p (B, 3) with vectors vt (3, M), as three outer
+    products: a k = 3 matrix product is slow in BLAS and fights over threads."""
+    out = np.multiply.outer(p[:, 0], vt[0])
+    out += np.multiply.outer(p[:, 1], vt[1])
+    out += np.multiply.outer(p[:, 2], vt[2])
+    return out
+
+
+def _in_cone(p: np.ndarray, d: np.ndarray, scene: _Scene, k: np.ndarray, pi: np.ndarray,
+             r: np.ndarray, width_deg: float) -> np.ndarray:
+    """Whether pair k's point lies inside the cone of full angle ``width_deg`` around the unit
+    pointing vector d (B, 3) of sensors p (B, 3); r (K,) the pair ranges."""
+    along = _pair_dot(d, scene.xt).ravel()[k] - np.einsum("ij,ij->i", p, d)[pi]  # (x - o)·d
+    return along >= np.cos(np.radians(width_deg / 2)) * r
 
 
 def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
-           cfg: SimulationConfig, synth: _Synth) -> tuple[np.ndarray, int]:
+           cfg: SimulationConfig, synth: _Synth, tx_dir: np.ndarray | None = None,
+           rx_dir: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """Echoes of all scatterers for one chunk of B pings: (B, T) float64 and #contributions."""
     s, sc, occ = cfg.scattering, scene.sc, scene.occ
     b, m = len(tx), len(sc)
@@ -240,9 +263,9 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
     flip = None
     if nrm is not None:
         # n·(o - x) for every pair, (B, M); its sign says whether the point faces the sensor
-        ft = tx @ nrm.T
+        ft = _pair_dot(tx, scene.nt)
         ft -= scene.nx
-        fr = rx @ nrm.T
+        fr = _pair_dot(rx, scene.nt)
         fr -= scene.nx
         if s.two_sided:  # face the side the TX is on
             flip = ft < 0
@@ -251,22 +274,31 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
         k = np.flatnonzero((ft > 0) & (fr > 0))           # facing both sensors
     else:
         k = np.arange(b * m)
+    pi = k // m
+    mi = k - pi * m
+    # |o - x|² = |o|² + |x|² - 2 o·x; in float64 the cancellation costs ~1e-16 m at these ranges
+    r_t = np.einsum("ij,ij->i", tx, tx)[pi] + scene.xx[mi] - 2.0 * _pair_dot(tx, scene.xt).ravel()[k]
+    r_r = np.einsum("ij,ij->i", rx, rx)[pi] + scene.xx[mi] - 2.0 * _pair_dot(rx, scene.xt).ravel()[k]
+    r_t = np.sqrt(np.maximum(r_t, 0.0, out=r_t), out=r_t)
+    r_r = np.sqrt(np.maximum(r_r, 0.0, out=r_r), out=r_r)
+    if s.tx_beamwidth_deg is not None or s.rx_beamwidth_deg is not None:
+        keep = np.ones(len(k), dtype=bool)
+        if s.tx_beamwidth_deg is not None:
+            keep &= _in_cone(tx, tx_dir, scene, k, pi, r_t, s.tx_beamwidth_deg)
+        if s.rx_beamwidth_deg is not None:
+            keep &= _in_cone(rx, rx_dir, scene, k, pi, r_r, s.rx_beamwidth_deg)
+        k, pi, mi, r_t, r_r = k[keep], pi[keep], mi[keep], r_t[keep], r_r[keep]
     if occ is not None and len(k):
         # TX leg first; only pairs that see the TX need the RX ray
-        pi, mi = np.divmod(k, m)
         if flip is None:
             start = scene.start[mi]
         else:
             back = flip.ravel()[k]
             start = np.where(back[:, None], scene.start_back[mi], scene.start[mi])
         free = ~occ.blocked(start, occ.to_frame(tx)[pi])
-        k, pi, start = k[free], pi[free], start[free]
+        k, pi, mi, r_t, r_r, start = k[free], pi[free], mi[free], r_t[free], r_r[free], start[free]
         free = ~occ.blocked(start, occ.to_frame(rx)[pi])
-        k = k[free]
-    pi, mi = np.divmod(k, m)
-    xm = x[mi]
-    r_t = _norm(tx[pi] - xm)
-    r_r = _norm(rx[pi] - xm)
+        k, pi, mi, r_t, r_r = k[free], pi[free], mi[free], r_t[free], r_r[free]
     if nrm is None:
         a = np.ones(len(k))
     else:
@@ -282,6 +314,7 @@ def _chunk(scene: _Scene, tx: np.ndarray, rx: np.ndarray, t0: np.ndarray,
             a = np.ones(len(k))
         if s.specular_weight > 0:
             # Blinn-Phong lobe around the bistatic half vector h = unit(ω_T + ω_R)
+            xm = x[mi]
             h = (tx[pi] - xm) / r_t[:, None] + (rx[pi] - xm) / r_r[:, None]
             n = nrm[mi] if flip is None else nrm[mi] * np.where(flip.ravel()[k], -1.0, 1.0)[:, None]
             cos_h = np.einsum("ij,ij->i", n, h) / np.maximum(np.linalg.norm(h, axis=1), 1e-12)
@@ -401,6 +434,7 @@ def simulate(
     occ = Occluder(mesh, cfg.scattering.ray_backend, cfg.threads) if (
         mesh is not None and cfg.scattering.occlusion) else None
 
+    tx_dir, rx_dir = pointing(cfg.trajectory, tx, rx, box)
     synth = _Synth(pulse, num_t, cfg.upsample)
     scene = _Scene(sc, weight, phase, cfg.scattering, occ)
     n = len(tx)
@@ -413,7 +447,8 @@ def simulate(
         for lo in range(0, n, step):
             check_stop(should_stop)
             hi = min(n, lo + step)
-            block, k = _chunk(scene, tx[lo:hi], rx[lo:hi], t0[lo:hi], cfg, synth)
+            block, k = _chunk(scene, tx[lo:hi], rx[lo:hi], t0[lo:hi], cfg, synth,
+                              tx_dir[lo:hi], rx_dir[lo:hi])
             contributions += k
             power += inband_power(block, cfg.fs, cfg.pulse.f_start, cfg.pulse.f_stop) * block.size
             clean[lo:hi] = block
@@ -441,14 +476,15 @@ def simulate(
         "ray_backend": occ.backend if occ is not None else "none",
     }
     meta = SurveyMeta(fs=cfg.fs, sound_speed=cfg.sound_speed, pulse=cfg.pulse, signal_kind="real",
-                      platform="simulated", scene_box=box, attrs=attrs)
-    center = box.center
+                      platform="simulated", scene_box=box, attrs=attrs,
+                      tx_beamwidth_deg=cfg.scattering.tx_beamwidth_deg,
+                      rx_beamwidth_deg=cfg.scattering.rx_beamwidth_deg)
     extras: dict[str, np.ndarray] = {"ping_index": index}
     if cfg.keep_clean:
         extras["clean"] = clean
     return Survey(
         tx=tx, rx=rx, samples=samples, t0=t0, meta=meta, pulse=pulse,
-        tx_dir=_unit(center - tx), rx_dir=_unit(center - rx),
+        tx_dir=tx_dir, rx_dir=rx_dir,
         gt_vertices=None if mesh is None else np.asarray(mesh.vertices, dtype=np.float64),
         gt_faces=None if mesh is None else np.asarray(mesh.faces, dtype=np.int64),
         extras=extras,
@@ -457,6 +493,23 @@ def simulate(
 
 def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+
+
+def pointing(traj: TrajectoryConfig, tx: np.ndarray, rx: np.ndarray, box: SceneBox
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Beam pointing vectors (N, 3) unit of TX and RX: at the scene-box centre, except on
+    linear passes, which look broadside (perpendicular to the track, +y) and down to the
+    centre's height."""
+    c = box.center
+    if traj.kind == "linear":
+        def broadside(p: np.ndarray) -> np.ndarray:
+            v = np.zeros_like(p)
+            v[:, 1] = c[1] - p[:, 1]
+            v[:, 2] = c[2] - p[:, 2]
+            return _unit(v)
+
+        return broadside(tx), broadside(rx)
+    return _unit(c - tx), _unit(c - rx)
 
 
 def _add_noise(clean: np.ndarray, cfg: SimulationConfig, signal_power: float,

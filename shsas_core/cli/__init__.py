@@ -15,7 +15,8 @@ from .. import __version__
 from ..errors import Cancelled, ShsasError
 
 #: Subcommand modules, in the order of the help text (data flow order).
-COMMANDS = ["info", "convert", "simulate", "fit", "reconstruct", "evaluate", "demo", "serve", "worker", "keys"]
+COMMANDS = ["info", "convert", "simulate", "backproject", "fit", "reconstruct", "evaluate", "demo",
+            "serve", "worker", "keys"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,6 +53,12 @@ def main(argv: list[str] | None = None) -> int:
     except Cancelled:
         print(f"shsas {args.command}: cancelled", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # `shsas info --json FILE | head`: the reader left; not an error of ours.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except KeyboardInterrupt:
         print(f"shsas {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -13,6 +13,11 @@ _EPILOG = """examples:
 The model, the surface sampling rule and the SNR definition are in docs/simulation.md."""
 
 
+#: config fields whose command-line option has another name
+_OPTION_NAMES = {"tx_beamwidth_deg": "tx-beamwidth", "rx_beamwidth_deg": "rx-beamwidth",
+                 "specular_weight": "specular", "snr_db": "snr", "kind": "trajectory"}
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "simulate", help="simulate a SAS survey of a mesh or built-in shape (with ground truth)",
@@ -26,6 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--mesh", metavar="PATH", help="mesh file (OBJ/PLY/STL/GLB) in metres, z up")
     src.add_argument("--shape", metavar="NAME", help="built-in shape: sphere, cube, torus or scene")
+    src.add_argument("--points", metavar="FILE.npy",
+                     help="point scatterers instead of a mesh: (M, 3) positions or (M, 6) positions "
+                     "and normals, metres (no occlusion, no ground truth mesh)")
     p.add_argument("--out", required=True, metavar="FILE.h5", help="survey file to write")
 
     g = p.add_argument_group("trajectory")
@@ -66,15 +74,30 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--spreading", action="store_true", help="two-way spherical spreading loss")
     g.add_argument("--random-phase", action="store_true", help="random phase per point (speckle)")
     g.add_argument("--random-amplitude", action="store_true", help="Rayleigh amplitude per point")
+    g.add_argument("--tx-beamwidth", type=float, default=None, metavar="DEG",
+                   help="full TX cone angle, degrees (default: omnidirectional); beams point at "
+                   "the scene centre, broadside on linear passes")
+    g.add_argument("--rx-beamwidth", type=float, default=None, metavar="DEG",
+                   help="full RX cone angle, degrees (default: omnidirectional)")
     g.add_argument("--two-sided", action="store_true", help="surfaces scatter from both sides")
     g.add_argument("--no-occlusion", action="store_true", help="skip shadow rays (faster, wrong)")
     g.add_argument("--spacing-fraction", type=float, default=0.25,
                    help="surface point spacing as a fraction of the shortest wavelength (default 0.25)")
     g.add_argument("--keep-clean", action="store_true", help="also store the noise-free signal")
+    g.add_argument("--scene-box", type=float, nargs=6, default=None,
+                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                   help="scene box stored in the survey and used for the record window, m "
+                   "(default: the mesh bounds plus 2 cm)")
     g.add_argument("--compression", choices=["none", "gzip", "lzf"], default="none",
                    help="compression of the sample arrays (default none)")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+    def one_line_error(message: str) -> None:
+        # argparse would print the whole usage block first; one line says it all here
+        p.exit(2, f"shsas simulate: error: {message} (see shsas simulate --help)\n")
+
+    p.error = one_line_error  # type: ignore[method-assign]
 
 
 def build_config(args: argparse.Namespace):
@@ -83,7 +106,7 @@ def build_config(args: argparse.Namespace):
 
     from ..errors import ShsasError
     from ..simulate import ScatteringConfig, SimulationConfig, TrajectoryConfig
-    from ..survey import PulseParams
+    from ..survey import PulseParams, SceneBox
 
     try:
         traj = TrajectoryConfig(
@@ -99,18 +122,45 @@ def build_config(args: argparse.Namespace):
             specular_exponent=args.specular_exponent, spreading=args.spreading,
             random_phase=args.random_phase, random_amplitude=args.random_amplitude,
             two_sided=args.two_sided, occlusion=not args.no_occlusion,
-            spacing_fraction=args.spacing_fraction)
+            spacing_fraction=args.spacing_fraction, tx_beamwidth_deg=args.tx_beamwidth,
+            rx_beamwidth_deg=args.rx_beamwidth)
+        box = None
+        if args.scene_box is not None:
+            try:
+                box = SceneBox(min=tuple(args.scene_box[:3]), max=tuple(args.scene_box[3:]))
+            except pydantic.ValidationError as exc:
+                msg = exc.errors()[0]["msg"].removeprefix("Value error, ")
+                raise ShsasError(f"--scene-box: {msg}") from None
         return SimulationConfig(
             trajectory=traj, pulse=pulse, scattering=scat, fs=args.fs,
             sound_speed=args.sound_speed, snr_db=None if args.no_noise else args.snr,
-            seed=args.seed, keep_clean=args.keep_clean)
+            seed=args.seed, keep_clean=args.keep_clean, scene_box=box)
     except pydantic.ValidationError as exc:
         err = exc.errors()[0]
         msg = err["msg"].removeprefix("Value error, ")
         if not err["loc"]:  # a check across several options
             raise ShsasError(f"invalid options: {msg}"[:300]) from None
-        loc = "--" + "-".join(str(p) for p in err["loc"]).replace("_", "-")
+        name = str(err["loc"][-1])
+        loc = "--" + _OPTION_NAMES.get(name, name).replace("_", "-")
         raise ShsasError(f"{loc}: {msg} (got {err.get('input')!r})"[:300]) from None
+
+
+def load_points(path: str):
+    """Scatterers from a .npy file holding (M, 3) positions or (M, 6) positions + normals."""
+    import numpy as np
+
+    from ..errors import ShsasError
+    from ..scatterers import Scatterers
+
+    try:
+        a = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise ShsasError(f"points file '{path}' not found") from None
+    except (OSError, ValueError) as exc:
+        raise ShsasError(f"cannot read points file '{path}': {exc}"[:300]) from None
+    if a.ndim != 2 or a.shape[1] not in (3, 6) or len(a) == 0 or not np.issubdtype(a.dtype, np.number):
+        raise ShsasError(f"points file '{path}' must hold a numeric (M, 3) or (M, 6) array, got {a.shape}")
+    return Scatterers(points=a[:, :3], normals=a[:, 3:] if a.shape[1] == 6 else None)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -120,10 +170,13 @@ def run(args: argparse.Namespace) -> int:
     from ..simulate import simulate
 
     cfg = build_config(args)
-    mesh = load_mesh(args.mesh if args.mesh is not None else args.shape)
+    if args.points is not None:
+        mesh, points = None, load_points(args.points)
+    else:
+        mesh, points = load_mesh(args.mesh if args.mesh is not None else args.shape), None
     bar = TqdmProgress(disable=args.quiet)
     try:
-        survey = simulate(mesh, cfg, progress=bar)
+        survey = simulate(mesh, cfg, scatterers=points, progress=bar)
     finally:
         bar.close()
     path = write_survey(survey, args.out, compression=None if args.compression == "none" else args.compression)

@@ -18,9 +18,9 @@ Two implementations of the same maths:
 
 * :func:`encode_reference`: the plain eager version, a Python loop over levels and corners; the
   reference every faster path is tested against.
-* :func:`encode_fused`: all levels and corners in one batched gather (``index_select`` on a
-  complex view of the table, whose backward is a matching ``index_add``), no Python loop over
-  levels, nested lerps instead of 8 corner weights. Optionally also returns the analytic spatial
+* :func:`encode_fused`: all levels and corners in one batched gather per feature (1-D
+  ``index_select`` with int32 rows, feature-major layout; its backward a matching ``index_add``),
+  no Python loop over levels, nested lerps instead of 8 corner weights. Optionally also returns the analytic spatial
   Jacobian of the features (as tangents (3, P, D)) from the same gathered corner values; the
   field uses it to get normals by forward-mode differentiation in the same pass.
 
@@ -177,7 +177,7 @@ class FusedLayout:
         # levels are ordered by resolution, so the dense ones form a prefix
         self.n_dense = sum(layout.dense)
         assert all(layout.dense[: self.n_dense]) and not any(layout.dense[self.n_dense :])
-        self.offsets = torch.tensor(layout.offsets, dtype=torch.int64, device=device)
+        self.offsets = torch.tensor(layout.offsets, dtype=torch.int32, device=device)
         # per-axis multipliers: dense strides (1, n+1, (n+1)^2) or the hash primes
         self.mult = torch.tensor(
             [[1, r + 1, (r + 1) ** 2] if d else list(PRIMES) for r, d in zip(n, layout.dense, strict=True)],
@@ -188,53 +188,12 @@ class FusedLayout:
         self.total_rows = layout.total_rows
 
 
-def _as_rows(t: torch.Tensor) -> torch.Tensor:
-    """(N, 2) real -> (N,) complex view (one 8/16-byte element per row) for faster index ops."""
-    return torch.view_as_complex(t) if t.shape[1] == 2 and t.is_contiguous() else t
-
-
-def _gather_impl(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
-    src = _as_rows(table)
-    out = src.index_select(0, rows)
-    return torch.view_as_real(out) if out.is_complex() else out
-
-
-def _scatter_impl(grad: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
-    grad = grad.contiguous()
-    src = _as_rows(grad)
-    acc = torch.zeros((n_rows, *src.shape[1:]), dtype=src.dtype, device=src.device)
-    acc.index_add_(0, rows, src)
-    return torch.view_as_real(acc) if acc.is_complex() else acc
-
-
-class _GatherRows(torch.autograd.Function):
-    """table[rows] whose backward is :class:`_ScatterRows` (and vice versa): differentiable to
-    any order. Same values as ``index_select``; the backward adds rows as complex numbers when
-    F = 2 (one index_add element per row), several times faster on CPU than the stock
-    ``index_select`` backward."""
-
-    @staticmethod
-    def forward(ctx, table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
-        ctx.save_for_backward(rows)
-        ctx.n_rows = table.shape[0]
-        return _gather_impl(table, rows)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor):
-        (rows,) = ctx.saved_tensors
-        return _ScatterRows.apply(grad, rows, ctx.n_rows), None
-
-
-class _ScatterRows(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, grad: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
-        ctx.save_for_backward(rows)
-        return _scatter_impl(grad, rows, n_rows)
-
-    @staticmethod
-    def backward(ctx, gg: torch.Tensor):
-        (rows,) = ctx.saved_tensors
-        return _GatherRows.apply(gg, rows), None, None
+# ---------------------------------------------------------------------------------------------
+# Fused path. Everything is laid out feature-major and corner-major with (P, Lv) innermost:
+# rows (8, P, Lv), corner values (F, 2z, 2y, 2x, P, Lv), fractions (3, P, Lv). Then every
+# elementwise op broadcasts over leading axes and runs over long contiguous inner loops, and the
+# gather/scatter are 1-D index_select/index_add with int32 indices (the fast CPU kernels);
+# a feature-minor layout (inner axis F = 2) was several times slower in eager PyTorch.
 
 
 def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Tensor]:
@@ -244,72 +203,260 @@ def fused_rows(u: torch.Tensor, fl: FusedLayout) -> tuple[torch.Tensor, torch.Te
         u: (P, 3) points, already clamped to [0, 1].
 
     Returns:
-        rows (P, Lv, 8) int64 (corner c = 4 cz + 2 cy + cx, level offsets included) and
-        frac (P, Lv, 3) in u's dtype (differentiable in u).
+        rows (8, P, Lv) int32 (corner c = 4 cz + 2 cy + cx, level offsets included) and
+        frac (3, P, Lv) in u's dtype (differentiable in u).
     """
-    res = fl.res.to(u.dtype)
-    i0, frac = _cell(u[:, None, :], res[None, :, None])  # (P, Lv, 3)
+    return _rows_frac(u, fl.res.to(u.dtype), fl.mult, fl.offsets, fl.n_dense, fl.mask)
+
+
+def _rows_frac(
+    u: torch.Tensor, res: torch.Tensor, mult: torch.Tensor, offsets: torch.Tensor, n_dense: int, mask: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`fused_rows` on explicit tensors (traceable by torch.compile)."""
+    xs = u.t()[:, :, None] * res  # (3, P, Lv)
+    lo = torch.minimum(torch.floor(xs), res - 1).clamp_min(0)  # last cell at u = 1, see _cell
+    frac = xs - lo
     # Row = combine over axes of (i0_a + c_a) * mult_a: a sum on dense levels, an xor on hashed
-    # ones. Multiplying per axis before combining keeps the temporaries at (P, Lv, 3, 2); only
-    # the final (P, Lv, 8) index is materialised. Masking each hashed term with T - 1 before
-    # the xor is exact because bitwise and distributes over xor.
-    corner = torch.arange(2, device=u.device)
-    axes = (i0[..., None] + corner) * fl.mult[None, :, :, None]  # (P, Lv, 3, 2)
-    nd = fl.n_dense
+    # ones (levels are sorted by resolution, so the dense ones are a prefix). Multiplying per
+    # axis before combining keeps the temporaries at (2, 3, P, Lv); masking each hashed term
+    # with T - 1 before the xor is exact because bitwise and distributes over xor. After the
+    # mask every term is < 2^24, so the combination runs in int32.
+    corner = torch.arange(2, device=u.device).view(2, 1, 1, 1)
+    axes = (lo.long()[None] + corner) * mult.t()[None, :, None, :]  # (2, 3, P, Lv) int64
     parts = []
-    if nd > 0:
-        a = axes[:, :nd]
-        parts.append(a[:, :, 2, :, None, None] + a[:, :, 1, None, :, None] + a[:, :, 0, None, None, :])
-    if nd < axes.shape[1]:
-        a = axes[:, nd:] & fl.mask
-        parts.append(a[:, :, 2, :, None, None] ^ a[:, :, 1, None, :, None] ^ a[:, :, 0, None, None, :])
-    rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
-    rows = rows.reshape(u.shape[0], fl.res.shape[0], 8) + fl.offsets[None, :, None]
+    if n_dense > 0:
+        a = axes[..., :n_dense].to(torch.int32)
+        parts.append(a[:, 2][:, None, None] + a[:, 1][None, :, None] + a[:, 0][None, None, :])
+    if n_dense < axes.shape[-1]:
+        a = (axes[..., n_dense:] & mask).to(torch.int32)
+        parts.append(a[:, 2][:, None, None] ^ a[:, 1][None, :, None] ^ a[:, 0][None, None, :])
+    rows = parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)  # (2z, 2y, 2x, P, Lv)
+    rows = (rows + offsets).reshape(8, u.shape[0], res.shape[0])
     return rows, frac
 
 
-def encode_fused(
-    u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False
+def _gather(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    """Corner values (F, 2z, 2y, 2x, P, Lv) of table (N, F) at rows (8, P, Lv)."""
+    tab_t = table.t().contiguous()  # (F, N): one 1-D gather per feature
+    flat = rows.reshape(-1)
+    feat = tab_t.shape[0]
+    if torch.is_grad_enabled():
+        v = torch.stack([tab_t[f].index_select(0, flat) for f in range(feat)])
+    else:  # gather straight into the output (no stack copy); out= is not differentiable
+        v = tab_t.new_empty((feat, flat.shape[0]))
+        for f in range(feat):
+            torch.index_select(tab_t[f], 0, flat, out=v[f])
+    return v.reshape(feat, 2, 2, 2, *rows.shape[1:])
+
+
+def _scatter(dv: torch.Tensor, rows: torch.Tensor, n_rows: int) -> torch.Tensor:
+    """Adjoint of :func:`_gather`: (F, 2, 2, 2, P, Lv) values added into a zero (N, F) table."""
+    flat = rows.reshape(-1)
+    feat = dv.shape[0]
+    if torch.is_grad_enabled():
+        cols = [dv.new_zeros(n_rows).index_add(0, flat, dv[f].reshape(-1)) for f in range(feat)]
+        return torch.stack(cols, 1)
+    acc = dv.new_zeros((feat, n_rows))
+    for f in range(feat):
+        acc[f].index_add_(0, flat, dv[f].reshape(-1))
+    return acc.t()
+
+
+def _lerp_forward(
+    v: torch.Tensor, frac: torch.Tensor, res: torch.Tensor, with_jacobian: bool
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
-    """Batched encoding: all levels and corners in one gather from the flat table.
+    """Trilinear interpolation of gathered corners by nested lerps, and its spatial Jacobian.
+
+    v: (F, 2z, 2y, 2x, P, Lv) corner values; frac: (3, P, Lv); res: (Lv,).
+    Returns out (F, P, Lv) and jac (3, F, P, Lv) (d out / d u_a), or None.
+    """
+    fx, fy, fz = frac[0], frac[1], frac[2]
+    if not with_jacobian:  # torch.lerp: one kernel per level of the tree
+        a = torch.lerp(v[:, :, :, 0], v[:, :, :, 1], fx)  # (F, 2z, 2y, P, Lv)
+        b = torch.lerp(a[:, :, 0], a[:, :, 1], fy)  # (F, 2z, P, Lv)
+        return torch.lerp(b[:, 0], b[:, 1], fz), None
+    dx = v[:, :, :, 1] - v[:, :, :, 0]  # (F, 2z, 2y, P, Lv)
+    a = torch.addcmul(v[:, :, :, 0], fx, dx)
+    dy = a[:, :, 1] - a[:, :, 0]  # (F, 2z, P, Lv)
+    b = torch.addcmul(a[:, :, 0], fy, dy)
+    dz = b[:, 1] - b[:, 0]  # (F, P, Lv)
+    out = torch.addcmul(b[:, 0], fz, dz)
+    cx = torch.lerp(dx[:, :, 0], dx[:, :, 1], fy)  # lerp_y of the x-differences, (F, 2z, P, Lv)
+    jac = torch.stack((torch.lerp(cx[:, 0], cx[:, 1], fz), torch.lerp(dy[:, 0], dy[:, 1], fz), dz), 0)
+    return out, jac * res
+
+
+def _lerp_adjoint(
+    g_out: torch.Tensor, g_jac: torch.Tensor | None, frac: torch.Tensor, res: torch.Tensor
+) -> torch.Tensor:
+    """Gradient w.r.t. the corner values v of :func:`_lerp_forward` (which is linear in v).
+
+    With per-axis weights W_a = (1 - f_a, f_a) and slopes S = res (-1, +1):
+    out = Σ Wz Wy Wx v, jac_x = Σ Wz Wy S v, jac_y = Σ Wz S Wx v, jac_z = Σ S Wy Wx v, so
+    dv = Wz ⊗ (Wy ⊗ (Wx g_out + S g_x) + S ⊗ Wx g_y) + S ⊗ Wy ⊗ Wx g_z.
+    g_out: (F, P, Lv); g_jac: (3, F, P, Lv) or None. Built from differentiable ops, so this
+    backward can itself be differentiated (double backward). Returns (F, 2z, 2y, 2x, P, Lv).
+    """
+    # Each axis splits a gradient g into (1 - f) g + ... and f g + ...; the (1 - f) half is
+    # computed as g - (f half), which halves the number of full-size products.
+    fx, fy, fz = frac[0], frac[1], frac[2]
+
+    def split(total: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
+        return torch.stack((total - upper, upper), 1)
+
+    if g_jac is None:
+        gx = split(g_out, g_out * fx)  # (F, 2x, P, Lv)
+        bb = split(gx, fy * gx)  # (F, 2y, 2x, P, Lv)
+        return split(bb, fz * bb)  # (F, 2z, 2y, 2x, P, Lv)
+    gjx, gjy, gjz = g_jac[0], g_jac[1], g_jac[2]
+    # x: W g_out + S g_jx, with S = res (-1, +1): the lower half is g_out - upper
+    gx = split(g_out, torch.addcmul(g_out * fx, gjx, res.expand_as(gjx)))
+    hy = split(gjy, gjy * fx)  # Wx g_jy
+    bb = split(gx, torch.addcmul(fy * gx, hy, res.expand_as(hy)))  # Wy gx + S (Wx g_jy)
+    kx = split(gjz, gjz * fx)  # Wx g_jz
+    cc = split(kx, fy * kx)  # Wy Wx g_jz
+    return split(bb, torch.addcmul(fz * bb, cc, res.expand_as(cc)))  # Wz bb + S cc
+
+
+def _to_point_major(out: torch.Tensor, jac: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(F, P, Lv) -> (P, Lv*F) level-major features; (3, F, P, Lv) -> (3, P, Lv*F) (or empty)."""
+    feat, p, nlev = out.shape
+    o = out.permute(1, 2, 0).reshape(p, nlev * feat)
+    if jac is None:
+        return o, out.new_zeros(0)
+    return o, jac.permute(0, 2, 3, 1).reshape(3, p, nlev * feat)
+
+
+def _to_feature_major(g: torch.Tensor, nlev: int) -> torch.Tensor:
+    """Inverse of :func:`_to_point_major` for gradients: (..., P, Lv*F) -> (..., F, P, Lv)."""
+    g = g.reshape(*g.shape[:-1], nlev, g.shape[-1] // nlev)  # (..., P, Lv, F)
+    return g.movedim(-1, -3).contiguous()
+
+
+def _kernel_forward(u, table, res, mult, offsets, n_dense: int, mask: int, with_jacobian: bool):
+    """Rows, gather, lerps: what torch.compile fuses into a few loops."""
+    rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+    out, jac = _lerp_forward(_gather(table, rows), frac.to(table.dtype), res.to(table.dtype), with_jacobian)
+    return _to_point_major(out, jac)
+
+
+def _kernel_backward(u, g_out, g_jac, n_rows: int, res, mult, offsets, n_dense: int, mask: int,
+                     with_jacobian: bool):
+    """Recompute rows from u, adjoint of the lerps, scatter-add into a zero table gradient."""
+    rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+    nlev = res.shape[0]
+    go = _to_feature_major(g_out, nlev)
+    gj = _to_feature_major(g_jac, nlev) if with_jacobian else None
+    dv = _lerp_adjoint(go, gj, frac.to(go.dtype), res.to(go.dtype))
+    return _scatter(dv, rows, n_rows)
+
+
+_COMPILED: dict[str, object] = {}
+_COMPILE_BROKEN: list[str] = []
+
+
+def _compiled(name: str, fn):
+    """torch.compile(fn, dynamic=True), built once per process (None after a failure)."""
+    if _COMPILE_BROKEN:
+        return None
+    if name not in _COMPILED:
+        _COMPILED[name] = torch.compile(fn, dynamic=True)
+    return _COMPILED[name]
+
+
+def _run_compiled(name: str, fn, *args):
+    """Run the compiled kernel, or the eager one if compiling fails (warn once, then stay eager)."""
+    cfn = _compiled(name, fn)
+    if cfn is not None:
+        try:
+            return cfn(*args)
+        except Exception as exc:  # inductor needs a C++ compiler / Triton; never fail the job
+            import warnings
+
+            _COMPILE_BROKEN.append(repr(exc))
+            warnings.warn(f"hash encoding: torch.compile failed ({exc!r:.200}); using the eager kernels",
+                          RuntimeWarning, stacklevel=3)
+    return fn(*args)
+
+
+class _InterpTable(torch.autograd.Function):
+    """Features (and Jacobian) from the table with a hand-written backward to the table.
+
+    Used when the points need no gradient (training: sample points come from geometry). The
+    backward is one adjoint pass plus one index_add per feature, instead of autograd's many
+    slice/select backward buffers. It is built from differentiable ops, so a double backward
+    (create_graph) through it works.
+
+    With ``compiled`` the forward and the first-order backward run as torch.compile'd kernels
+    that recompute the rows from u instead of saving them.
+    """
+
+    @staticmethod
+    def forward(ctx, table, u, res, mult, offsets, n_dense, mask, with_jacobian, compiled):
+        ctx.n_rows = table.shape[0]
+        ctx.meta = (n_dense, mask, with_jacobian, compiled)
+        if compiled:
+            ctx.save_for_backward(u, res, mult, offsets, None, None)
+            return _run_compiled("fwd", _kernel_forward, u, table, res, mult, offsets, n_dense, mask,
+                                 with_jacobian)
+        rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+        frac = frac.to(table.dtype)
+        out, jac = _lerp_forward(_gather(table, rows), frac, res.to(table.dtype), with_jacobian)
+        ctx.save_for_backward(u, res, mult, offsets, rows, frac)
+        return _to_point_major(out, jac)
+
+    @staticmethod
+    def backward(ctx, g_out, g_jac):
+        u, res, mult, offsets, rows, frac = ctx.saved_tensors
+        n_dense, mask, with_jacobian, compiled = ctx.meta
+        if compiled and not torch.is_grad_enabled():
+            g_table = _run_compiled("bwd", _kernel_backward, u, g_out.contiguous(),
+                                    g_jac.contiguous() if with_jacobian else g_out.new_zeros(0),
+                                    ctx.n_rows, res, mult, offsets, n_dense, mask, with_jacobian)
+            return g_table, None, None, None, None, None, None, None, None
+        if rows is None:
+            rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
+            frac = frac.to(g_out.dtype)
+        nlev = res.shape[0]
+        go = _to_feature_major(g_out, nlev)
+        gj = _to_feature_major(g_jac, nlev) if with_jacobian else None
+        dv = _lerp_adjoint(go, gj, frac, res.to(g_out.dtype))
+        return _scatter(dv, rows, ctx.n_rows), None, None, None, None, None, None, None, None
+
+
+def encode_fused(
+    u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False, compiled: bool = False
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Batched encoding: all levels and corners in one gather per feature from the flat table.
 
     Interpolation is done as nested lerps (x, then y, then z) on the gathered corner values,
-    and the spatial Jacobian reuses the same differences, so it costs a few extra lerps.
+    and the spatial Jacobian reuses the same differences, so it costs a few extra lerps. When
+    ``u`` needs no gradient a custom autograd function with a hand-written (and itself
+    differentiable) backward to the table is used; otherwise plain autograd ops, differentiable
+    to any order in both the table and ``u``.
 
     Args:
         u: (P, 3) points in [0, 1]^3 (clamped here).
         table: (total_rows, F) vertex features.
         fl: device layout.
         with_jacobian: also return the Jacobian.
+        compiled: run the no-grad-in-u kernels through ``torch.compile`` (inductor C++ on CPU,
+            Triton on CUDA); same values, compiled once per process (tens of seconds on CPU).
 
     Returns:
         features (P, n_levels * F) and, if asked, the Jacobian as tangents ``(3, P, n_levels *
         F)``: entry ``[a, p, d] = d feature_d / d u_a`` at point p (else None).
     """
     u = u.clamp(0.0, 1.0)
-    p, feat = u.shape[0], table.shape[1]
-    rows, frac = fused_rows(u, fl)
-    nlev = rows.shape[1]
-    v = _GatherRows.apply(table, rows.reshape(-1)).reshape(p, nlev, 2, 2, 2, feat)  # [z, y, x]
-    frac = frac.to(table.dtype)
-    fx = frac[:, :, 0, None, None, None]
-    fy = frac[:, :, 1, None, None]
-    fz = frac[:, :, 2, None]
-    dx = v[:, :, :, :, 1] - v[:, :, :, :, 0]  # (P, Lv, 2z, 2y, F)
-    a = v[:, :, :, :, 0] + fx * dx
-    dy = a[:, :, :, 1] - a[:, :, :, 0]  # (P, Lv, 2z, F)
-    b = a[:, :, :, 0] + fy * dy
-    dz = b[:, :, 1] - b[:, :, 0]  # (P, Lv, F)
-    out = (b[:, :, 0] + fz * dz).reshape(p, nlev * feat)
-    if not with_jacobian:
-        return out, None
-    res = fl.res.to(table.dtype)[None, :, None]
-    cx = dx[:, :, :, 0] + fy * (dx[:, :, :, 1] - dx[:, :, :, 0])  # lerp_y of x-differences
-    jx = (cx[:, :, 0] + fz * (cx[:, :, 1] - cx[:, :, 0])) * res
-    jy = (dy[:, :, 0] + fz * (dy[:, :, 1] - dy[:, :, 0])) * res
-    jz = dz * res
-    jac = torch.stack((jx, jy, jz), 0).reshape(3, p, nlev * feat)
-    return out, jac
+    if u.requires_grad and torch.is_grad_enabled():
+        rows, frac = fused_rows(u, fl)
+        out, jac = _lerp_forward(_gather(table, rows), frac.to(table.dtype), fl.res.to(table.dtype),
+                                 with_jacobian)
+        out, jac = _to_point_major(out, jac)
+    else:
+        out, jac = _InterpTable.apply(table, u.detach(), fl.res.to(u.dtype), fl.mult, fl.offsets, fl.n_dense,
+                                      fl.mask, with_jacobian, compiled)
+    return out, (jac if with_jacobian else None)
 
 
 class HashEncoding(torch.nn.Module):
@@ -318,14 +465,16 @@ class HashEncoding(torch.nn.Module):
     Args:
         cfg: grid shape (:class:`HashEncodingConfig`).
         fast: use :func:`encode_fused` (batched) instead of :func:`encode_reference` (loop).
+        compiled: with ``fast``, run the fused kernels through torch.compile.
 
     ``forward(u (P,3) in [0,1]^3) -> (P, cfg.output_dim)``.
     """
 
-    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True):
+    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True, compiled: bool = False):
         super().__init__()
         self.cfg = cfg or CPU_ENCODING
         self.fast = fast
+        self.compiled = compiled
         self.layout = LevelLayout(self.cfg)
         self.table = torch.nn.Parameter(
             torch.empty(self.layout.total_rows, self.cfg.n_features).uniform_(-self.cfg.init_scale, self.cfg.init_scale)
@@ -349,12 +498,13 @@ class HashEncoding(torch.nn.Module):
     def forward(self, u: torch.Tensor) -> torch.Tensor:
         self._check(u)
         if self.fast:
-            return encode_fused(u, self.table, self.fused_layout(u.device))[0]
+            return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.compiled)[0]
         return encode_reference(u, self.table, self.layout)
 
     def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Features (P, D) and their Jacobian as tangents (3, P, D) = d features / d u_a."""
         self._check(u)
-        out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True)
+        out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True,
+                                compiled=self.compiled)
         assert jac is not None
         return out, jac

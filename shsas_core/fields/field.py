@@ -54,6 +54,9 @@ class FieldConfig(BaseModel):
         1e-2, gt=0, description="density at initialisation (1/m), from the bias of Re c_00"
     )
     fast: bool = Field(True, description="batched encoding + forward-mode normals (same maths)")
+    compile: bool = Field(
+        False, description="with fast: torch.compile the encoding kernels (pays off on long runs)"
+    )
 
     @property
     def num_coefficients(self) -> int:
@@ -105,7 +108,7 @@ class SHField(torch.nn.Module):
         self.cfg = cfg = cfg or FieldConfig()
         self.degree = cfg.sh_degree
         self.k = cfg.num_coefficients
-        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast)
+        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast, compiled=cfg.fast and cfg.compile)
         dims = [self.encoding.output_dim] + [cfg.hidden] * cfg.layers + [2 * self.k]
         self.linears = torch.nn.ModuleList(torch.nn.Linear(a, b) for a, b in itertools.pairwise(dims))
         last = self.linears[-1]
@@ -126,10 +129,12 @@ class SHField(torch.nn.Module):
             raise ShsasError(f"field: {name} must have shape (P, 3), got {tuple(x.shape)}")
 
     def _unit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """u = (x - min) / size and the inside-box mask (P,) as 0/1 in x's dtype."""
+        """u = (x - min) / size and the inside-box mask (P,) as 0/1, in the parameters' dtype
+        (points may come in float64; the network runs in its own dtype)."""
         u = (x - self.box_min.to(x.dtype)) / self.box_size.to(x.dtype)
-        inside = ((u >= 0) & (u <= 1)).all(dim=1).to(x.dtype)
-        return u, inside
+        dt = self.encoding.table.dtype
+        inside = ((u >= 0) & (u <= 1)).all(dim=1).to(dt)
+        return u.to(dt), inside
 
     def _mlp(self, h: torch.Tensor) -> torch.Tensor:
         for i, lin in enumerate(self.linears):

@@ -60,8 +60,10 @@ def sphere_survey(n_pings: int = 48, center=(0.0, 0.0, 0.09), radius: float = 0.
     return survey, (sig / np.abs(sig).max()).astype(np.complex64)
 
 
-def density_concentration(field, center, radius, box, n: int = 32, shell: float = 0.01) -> float:
-    """Mean density within ``shell`` m of the sphere surface over the mean elsewhere in the box."""
+def density_concentration(field, center, radius, box, n: int = 40, shell: float = 0.01) -> float:
+    """Mean density within ``shell`` m of the sphere surface over the mean density in the free
+    space more than ``shell`` outside it (grid of ``n``^3 points over the box). The interior is
+    left out: it is occluded by the front surface, so the data says nothing about it."""
     import torch
 
     axes = [np.linspace(lo, hi, n) for lo, hi in zip(box.min, box.max, strict=True)]
@@ -69,6 +71,6 @@ def density_concentration(field, center, radius, box, n: int = 32, shell: float 
     with torch.no_grad():
         p = next(field.parameters())
         rho = field.density(torch.as_tensor(g, dtype=p.dtype, device=p.device)).cpu().numpy()
-    dist = np.abs(np.linalg.norm(g - np.asarray(center), axis=1) - radius)
-    near = dist < shell
-    return float(rho[near].mean() / max(rho[~near].mean(), 1e-30))
+    dist = np.linalg.norm(g - np.asarray(center), axis=1) - radius
+    near, outside = np.abs(dist) < shell, dist >= shell
+    return float(rho[near].mean() / max(rho[outside].mean(), 1e-30))

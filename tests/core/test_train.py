@@ -15,6 +15,16 @@ from shsas_core.train import LossWeights, TrainConfig, _set_active_degree, fit, 
 
 from .sphere_data import density_concentration, sphere_survey
 
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    """Tiny batches: one thread beats two on a shared 2-core machine (and avoids oversubscription)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 TINY = HashEncodingConfig(n_levels=3, n_features=2, log2_table_size=9, base_resolution=4, finest_resolution=16)
 
 
@@ -101,24 +111,37 @@ def test_sparsity_weight_lowers_density(small):
     assert means[1] < 0.5 * means[0]
 
 
-def test_tv_weights_smooth_the_field(small):
+def test_each_tv_term_alone_smooths_its_quantity(small):
     survey, sig = small
     box = survey.meta.scene_box
     g = torch.Generator().manual_seed(1)
     lo, size = torch.tensor(box.min, dtype=torch.float32), torch.tensor(box.size, dtype=torch.float32)
     x = torch.rand(3000, 3, generator=g) * size + lo
     dx = 0.004 * torch.nn.functional.normalize(torch.randn(3000, 3, generator=g), dim=-1)
-    tv = []
-    for w in (0.0, 10.0):
+    look = torch.nn.functional.normalize(torch.randn(3000, 3, generator=g), dim=-1)
+
+    def tv_of(f):
+        with torch.no_grad():
+            a, b = f(x, look, with_normals=False), f(x + dx, look, with_normals=False)
+        return {"tv_density": float((a["density"] - b["density"]).abs().mean()),
+                "tv_scatter": float((a["scattering"].abs() - b["scattering"].abs()).abs().mean()),
+                "tv_phase": float((torch.exp(1j * a["scattering"].angle())
+                                   - torch.exp(1j * b["scattering"].angle())).abs().mean())}
+
+    def rough():
         f = _field(survey)
         with torch.no_grad():  # start rough so there is variation to smooth
             f.encoding.table.uniform_(-0.5, 0.5, generator=torch.Generator().manual_seed(2))
-        cfg = _cfg(iters=15, num_rays=32, weights=LossWeights(tv_density=w, tv_scatter=w, tv_phase=w),
-                   tv_delta=0.004)
-        fit(f, survey, sig, cfg)
-        with torch.no_grad():
-            tv.append(float((f.density(x) - f.density(x + dx)).abs().mean()))
-    assert tv[1] < 0.5 * tv[0]
+            f.linears[-1].weight.mul_(30.0)
+        return f
+
+    before = tv_of(rough())
+    for name in ("tv_density", "tv_scatter", "tv_phase"):
+        f = rough()
+        cfg = _cfg(iters=20, lr=3e-3, num_rays=32, tv_delta=0.004, weights=LossWeights(tof=0.0, **{name: 1.0}))
+        res = fit(f, survey, sig, cfg)
+        assert res.loss_history[-1] < res.loss_history[0]  # the loss is the TV term alone
+        assert tv_of(f)[name] < 0.7 * before[name], name
 
 
 def test_progressive_sh_masks_higher_degrees(small):
@@ -162,18 +185,51 @@ def test_cli_fit_writes_outputs_and_resumes(small, tmp_path):
 
 @pytest.mark.slow
 def test_training_on_a_sphere_fits_the_data_and_finds_the_surface():
-    """Data loss falls >= 10x from its value at initialisation (first 10 vs last 20 iterations)
-    and the density within 1 cm of the true sphere surface is >= 3x its mean elsewhere."""
-    survey, sig = sphere_survey()
+    """Isotropic field (L = 0) on 48 ideal incoherent echo profiles of a 5 cm sphere: the data loss
+    falls >= 10x from its value at initialisation (mean of the first 10 vs the last 20 iterations)
+    and the mean density within 1 cm of the true surface is >= 2.5x the mean density in the free
+    space outside (see ``density_concentration``)."""
+    survey, sig = sphere_survey(coherent=False)
     torch.manual_seed(0)
     enc = HashEncodingConfig(n_levels=8, log2_table_size=13, base_resolution=8, finest_resolution=128)
-    f = SHField(FieldConfig(sh_degree=1, encoding=enc, scene_box=survey.meta.scene_box))
-    cfg = TrainConfig(iters=300, lr=1e-2, num_bins=32, num_rays=128, device="cpu", seed=0)
+    f = SHField(FieldConfig(sh_degree=0, encoding=enc, scene_box=survey.meta.scene_box))
+    assert density_concentration(f, (0.0, 0.0, 0.09), 0.05, survey.meta.scene_box) < 1.1  # flat start
+    cfg = TrainConfig(iters=1500, lr=3e-3, num_bins=32, num_rays=128, device="cpu", seed=0)
     res = fit(f, survey, sig, cfg)
     h = np.asarray(res.data_loss_history)
     assert h[:10].mean() >= 10 * h[-20:].mean()
-    assert density_concentration(f, (0.0, 0.0, 0.09), 0.05, survey.meta.scene_box) >= 3.0
-    # novel views: rendering held-in pings on the full time axis beats predicting zeros
+    assert density_concentration(f, (0.0, 0.0, 0.09), 0.05, survey.meta.scene_box) >= 2.5
+    # rendering whole pings beats predicting zeros
     pred = render_transients(f, survey, [0, 5], RenderConfig(num_rays=256), amplitude=res.amplitude)
     err = signal_errors(pred, sig[[0, 5]])
     assert err["mse_abs"] < signal_errors(np.zeros_like(pred), sig[[0, 5]])["mse_abs"]
+
+
+@pytest.mark.slow
+def test_end_to_end_simulated_sphere_wiener_then_fit():
+    """simulate (sphere, 20 dB) -> Wiener s_PD -> fit: the data loss falls and held-out pings render."""
+    from shsas_core.deconv import deconvolve
+    from shsas_core.simulate import simulate_shape
+
+    survey = simulate_shape("sphere", heights=2, angles=24, snr_db=20.0, seed=0)
+    spd = deconvolve(survey)
+    train = np.arange(0, survey.num_pings, 2)
+    f = _field(survey, degree=1)
+    res = fit(f, survey, spd, _cfg(iters=60, lr=3e-3, num_bins=16, num_rays=64, pings_per_batch=1),
+              ping_indices=train)
+    h = np.asarray(res.data_loss_history)
+    assert h[-15:].mean() < 0.8 * h[:15].mean()
+    held = [1, 3]
+    pred = render_transients(f, survey, held, RenderConfig(num_rays=64), amplitude=res.amplitude)
+    err = signal_errors(pred, spd[held])
+    assert all(np.isfinite(v) for v in err.values())
+
+
+@pytest.mark.gpu
+def test_fit_and_render_on_cuda(small, tmp_path):
+    survey, sig = small
+    f = _field(survey)
+    res = fit(f, survey, sig, _cfg(iters=4, device="cuda"), checkpoint_dir=tmp_path)
+    assert next(f.parameters()).is_cuda and np.all(np.isfinite(res.loss_history))
+    pred = render_transients(f, survey, [0], RenderConfig(num_rays=32), amplitude=res.amplitude)
+    assert pred.shape == (1, survey.num_samples) and np.isfinite(pred).all()
