@@ -60,7 +60,12 @@ def pg_url() -> Iterator[str]:
     yield f"{PG_URL}#{schema}"
     eng = sa.create_engine(PG_URL)
     with eng.begin() as conn:
-        conn.execute(sa.text(f'DROP SCHEMA IF EXISTS "{schema}" CASCADE'))
+        # db_env() and the store tests derive one schema per use: <schema>_<suffix>.
+        names = conn.execute(sa.text("SELECT schema_name FROM information_schema.schemata "
+                                     "WHERE schema_name = :s OR schema_name LIKE :p"),
+                             {"s": schema, "p": schema + "\\_%"}).scalars().all()
+        for name in names:
+            conn.execute(sa.text(f'DROP SCHEMA IF EXISTS "{name}" CASCADE'))
     eng.dispose()
 
 

@@ -22,7 +22,7 @@ pytestmark = pytest.mark.service
 QUICK_SPEC = {"methods": ["backprojection"], "grid": 16, "device": "cpu"}
 LONG_SPEC = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
 #: Runs a few seconds, so a worker can be killed mid-job and the job still finish soon after.
-RESUMABLE_SPEC = {"methods": ["reed"], "iters": 60, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
+RESUMABLE_SPEC = {"methods": ["reed"], "iters": 40, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
 
 
 @pytest.fixture(scope="module")

@@ -253,7 +253,7 @@ def test_local_worker_killed_mid_job_is_restarted_and_job_resumes(client, server
     import os
     import signal
 
-    spec = {"methods": ["reed"], "iters": 60, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
+    spec = {"methods": ["reed"], "iters": 40, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
     job = submit(client, survey_file, spec).json()
     wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] >= 0.25, 90, "job under way")
     victim = _local_worker_pid(server["proc"].pid)
