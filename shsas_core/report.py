@@ -154,6 +154,7 @@ def mip_figure(volumes: dict[str, Volume]) -> bytes:
             ax.set_xlabel("xyz"[a] + " (m)")
             ax.set_ylabel("xyz"[b] + " (m)")
             ax.set_title(f"{name}: MIP along {'xyz'[axis]}", fontsize=9)
+    fig.tight_layout()
     return _png(fig)
 
 
