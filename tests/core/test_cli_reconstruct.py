@@ -17,7 +17,6 @@ def survey_file(tmp_path_factory):
     return write_survey(s, tmp_path_factory.mktemp("survey") / "cube.h5"), s
 
 
-@pytest.mark.slow  # ~20 s on 2 cores, mostly the one-off torch.compile of the backprojection kernel
 def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")  # rich wraps tables to the terminal width
     path, survey = survey_file
@@ -64,7 +63,7 @@ def test_bad_input_exits_2_with_one_line(argv, needle, capsys, tmp_path, monkeyp
     assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err
 
 
-@pytest.mark.slow  # simulation + backprojection compile + a few training steps
+@pytest.mark.slow  # 5 s on 2 cores, a minute and more when they are shared
 def test_demo_tiny(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")
     out = tmp_path / "demo"

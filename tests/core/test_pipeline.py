@@ -27,7 +27,6 @@ def test_holdout_split():
     assert len(holdout_split(10, 0.0, 0)[1]) == 0
 
 
-@pytest.mark.slow  # ~20 s: one-off torch.compile of the backprojection kernel
 def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     survey = sphere_survey
     spec = ReconstructionSpec(methods=["backprojection"], grid=24, device="cpu")
@@ -95,7 +94,7 @@ def test_cancel_between_steps(tmp_path, sphere_survey):
     assert not (tmp_path / "report.json").exists()
 
 
-@pytest.mark.slow  # ~60 s on the shared 2-core machine (rendering held-out pings dominates)
+@pytest.mark.slow  # 13 s on 2 cores, up to a minute when they are shared (rendering held-out pings)
 def test_neural_methods_end_to_end_with_holdout_and_resume(tmp_path, sphere_survey):
     spec = ReconstructionSpec(methods=["reed", "shsas"], sh_degree=1, iters=4, grid=12, num_bins=8,
                               num_rays=16, holdout_fraction=0.1, device="cpu", seed=3)
