@@ -33,6 +33,10 @@ class ReconstructionSpec(BaseModel):
     num_rays: int = Field(1024, ge=1, le=65536, description="rays per ping per iteration")
     pings_per_batch: int = Field(1, ge=1, le=64)
     holdout_fraction: float = Field(0.0, ge=0, lt=0.9, description="pings held out for novel-view errors")
+    lr: float = Field(1e-3, gt=0, le=1.0, description="Adam learning rate of the neural methods")
+    encoding: Literal["cpu", "small", "paper_gpu"] = Field(
+        "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
+        "small (8 levels, 2^13 rows, finest 128: fastest, for short CPU runs), paper_gpu (the paper's)")
 
     @field_validator("methods")
     @classmethod

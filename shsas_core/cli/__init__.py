@@ -15,7 +15,8 @@ from .. import __version__
 from ..errors import Cancelled, ShsasError
 
 #: Subcommand modules, in the order of the help text (data flow order).
-COMMANDS = ["info", "convert", "simulate", "backproject", "fit"]
+COMMANDS = ["info", "convert", "simulate", "backproject", "fit", "reconstruct", "evaluate", "demo",
+            "serve", "worker", "keys"]
 
 
 def build_parser() -> argparse.ArgumentParser:

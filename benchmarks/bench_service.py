@@ -1,0 +1,282 @@
+"""Service benchmark: status polling under load, and a large upload. Prints figures, never asserts.
+
+1. Upload: a canonical survey of ``--upload-gb`` GB (default 1) to a `shsas serve --no-worker`
+   server: MB/s for the upload alone (a request with an invalid spec, refused only after the
+   whole body is on disk and hashed) and end to end to 202 (upload + validation in the child
+   process), and the API process's peak RSS growth (VmHWM after minus VmRSS before; the
+   validation child is a separate process and not included). Goal: < 100 MB.
+2. Polling: ``--clients`` (default 100) concurrent clients on loopback polling
+   GET /reconstructions/{id} of a running job for ``--seconds`` (default 30) on an embedded
+   server (API + local worker running the job). Closed loop (each client sends its next
+   request as soon as the last one answered) and, with ``--interval``, paced. Prints
+   requests/s, p50, p99, max. Goal: p99 < 50 ms with a job running.
+
+    PYTHONPATH=$PWD python benchmarks/bench_service.py [--seconds 30] [--clients 100] [--upload-gb 1]
+
+The client runs on the same machine as the server and competes with it for CPU.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import h5py
+import httpx
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from shsas_core.io import FORMAT_NAME, SCHEMA_VERSION  # noqa: E402
+from shsas_core.survey import SurveyMeta, default_pulse  # noqa: E402
+
+LONG_SPEC = {"methods": ["shsas"], "iters": 200000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
+
+
+def free_port() -> int:
+    with contextlib.closing(socket.socket()) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def write_big_survey(path: Path, gigabytes: float, samples_per_ping: int = 65536) -> int:
+    """A valid canonical survey of about ``gigabytes`` GB, written block by block (bounded memory)."""
+    n = max(1, int(gigabytes * 1e9 / (4 * samples_per_ping)))
+    meta = SurveyMeta(platform="bench")
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    tx = np.stack([0.85 * np.cos(ang), 0.85 * np.sin(ang), np.full(n, 0.3)], 1)
+    rng = np.random.default_rng(0)
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = FORMAT_NAME
+        f.attrs["schema_version"] = SCHEMA_VERSION
+        f.attrs["meta"] = meta.model_dump_json()
+        g = f.create_group("pings")
+        g["tx"] = tx
+        g["rx"] = tx + np.array([0.0, 0.0, -0.038])
+        g["t0"] = np.full(n, 3e-3)
+        ds = g.create_dataset("samples", shape=(n, samples_per_ping), dtype=np.float32)
+        block = rng.standard_normal((256, samples_per_ping)).astype(np.float32)
+        for start in range(0, n, 256):
+            stop = min(start + 256, n)
+            ds[start:stop] = block[: stop - start]
+        f.create_group("pulse")["samples"] = default_pulse(meta)
+    return path.stat().st_size
+
+
+def start_server(data: Path, log: Path, *extra: str) -> tuple[subprocess.Popen, str]:
+    port = free_port()
+    env = {**os.environ, "PYTHONPATH": str(REPO), "SHSAS_DATA_DIR": str(data),
+           "SHSAS_MAX_UPLOAD_BYTES": str(8 * 1024**3), "SHSAS_VALIDATE_MEMORY_BYTES": str(2 * 1024**3)}
+    env.pop("SHSAS_BROKER_URL", None)
+    env.pop("SHSAS_DATABASE_URL", None)
+    proc = subprocess.Popen([sys.executable, "-m", "shsas_core.cli", "serve", "--port", str(port),
+                             "--log-level", "warning", *extra], env=env, cwd=REPO,
+                            stdout=open(log, "wb"), stderr=subprocess.STDOUT, start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        with contextlib.suppress(httpx.HTTPError):
+            if httpx.get(base + "/healthz", timeout=1).status_code == 200:
+                return proc, base
+        time.sleep(0.2)
+    stop(proc)
+    raise RuntimeError("server did not start:\n" + log.read_text()[-2000:])
+
+
+def stop(proc: subprocess.Popen) -> None:
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(10)
+    except subprocess.TimeoutExpired:
+        pass
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(5)
+
+
+def proc_kb(pid: int, field: str) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1])
+    raise KeyError(field)
+
+
+def reset_peak(pid: int) -> bool:
+    """Reset VmHWM to the current RSS (Linux: write 5 to clear_refs); False if not allowed."""
+    try:
+        Path(f"/proc/{pid}/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far."""
+    f = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(f[11]) + int(f[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def upload(base: str, path: Path, spec: dict) -> tuple[int, float, str]:
+    """POST the survey with curl when present (a C client: the figure is the server's), else httpx."""
+    t0 = time.perf_counter()
+    if shutil.which("curl"):
+        r = subprocess.run(["curl", "-s", "-w", "\n%{http_code}", "-F", f"survey=@{path}",
+                            "-F", f"spec={json.dumps(spec)}", base + "/reconstructions"],
+                           capture_output=True, text=True, timeout=600, check=False)
+        body, _, code = r.stdout.rpartition("\n")
+        return int(code or 0), time.perf_counter() - t0, body[:200]
+    with open(path, "rb") as fh:
+        resp = httpx.post(base + "/reconstructions", files={"survey": (path.name, fh, "application/x-hdf5")},
+                          data={"spec": json.dumps(spec)}, timeout=600)
+    return resp.status_code, time.perf_counter() - t0, resp.text[:200]
+
+
+def bench_upload(tmp: Path, gigabytes: float) -> None:
+    survey = tmp / "big.h5"
+    t0 = time.perf_counter()
+    size = write_big_survey(survey, gigabytes)
+    print(f"upload: survey {size / 1e6:.0f} MB written in {time.perf_counter() - t0:.1f} s; "
+          f"client: {'curl' if shutil.which('curl') else 'httpx'}")
+    proc, base = start_server(tmp / "data-upload", tmp / "upload.log", "--no-worker")
+    try:
+        time.sleep(1.0)
+        rss0 = proc_kb(proc.pid, "VmRSS")
+        exact = reset_peak(proc.pid)
+        c0 = cpu_s(proc.pid)
+        status, dt, text = upload(base, survey, {"grid": 100000})  # refused after the full upload
+        hwm = proc_kb(proc.pid, "VmHWM")
+        print(f"upload only (spec refused after body stored): HTTP {status} in {dt:.2f} s = "
+              f"{size / 1e6 / dt:.0f} MB/s; API CPU {cpu_s(proc.pid) - c0:.1f} s; "
+              f"API peak RSS growth {(hwm - rss0) / 1024:.1f} MB "
+              f"(RSS before {rss0 / 1024:.0f} MB{'' if exact else ', peak not resettable: upper bound'})")
+        rss0 = proc_kb(proc.pid, "VmRSS")
+        reset_peak(proc.pid)
+        status, dt, text = upload(base, survey, {"methods": ["backprojection"], "grid": 16})
+        hwm = proc_kb(proc.pid, "VmHWM")
+        print(f"upload + validation to 202: HTTP {status} in {dt:.2f} s = {size / 1e6 / dt:.0f} MB/s; "
+              f"API peak RSS growth {(hwm - rss0) / 1024:.1f} MB")
+        if status != 202:
+            print("  response:", text)
+    finally:
+        stop(proc)
+        survey.unlink(missing_ok=True)
+
+
+async def _get(reader: asyncio.StreamReader, writer: asyncio.StreamWriter, request: bytes) -> int:
+    """One keep-alive HTTP/1.1 GET on an open connection; returns the status code."""
+    writer.write(request)
+    await writer.drain()
+    head = await reader.readuntil(b"\r\n\r\n")
+    status = int(head[9:12])
+    length = 0
+    for line in head.split(b"\r\n"):
+        if line[:15].lower() == b"content-length:":
+            length = int(line[15:])
+    if length:
+        await reader.readexactly(length)
+    return status
+
+
+async def poll_clients(base: str, job_id: str, clients: int, seconds: float, interval: float) -> list[float]:
+    """``clients`` connections, each polling the job's status. A minimal raw HTTP/1.1 client:
+    httpx's async pool costs ~4 ms of client CPU per request at this concurrency, which would
+    measure the client, not the server."""
+    host, port = base.removeprefix("http://").split(":")
+    request = f"GET /reconstructions/{job_id} HTTP/1.1\r\nHost: {host}\r\n\r\n".encode()
+    lat: list[float] = []
+    errors = 0
+    end = time.perf_counter() + seconds
+
+    async def one(k: int) -> None:
+        nonlocal errors
+        reader, writer = await asyncio.open_connection(host, int(port))
+        await asyncio.sleep(interval * k / clients if interval else 0)  # spread the phases
+        try:
+            while time.perf_counter() < end:
+                t = time.perf_counter()
+                try:
+                    if await _get(reader, writer, request) != 200:
+                        errors += 1
+                except (OSError, asyncio.IncompleteReadError, ValueError):
+                    errors += 1
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, int(port))
+                dt = time.perf_counter() - t
+                lat.append(dt)
+                if interval:
+                    await asyncio.sleep(max(0.0, interval - dt))
+        finally:
+            writer.close()
+
+    await asyncio.gather(*(one(k) for k in range(clients)))
+    if errors:
+        print(f"  errors: {errors}")
+    return lat
+
+
+def report(label: str, lat: list[float], seconds: float) -> None:
+    a = np.asarray(lat) * 1000
+    print(f"{label}: {len(a)} requests in {seconds:.0f} s = {len(a) / seconds:.0f} req/s; "
+          f"p50 {np.percentile(a, 50):.1f} ms, p99 {np.percentile(a, 99):.1f} ms, max {a.max():.1f} ms")
+
+
+def bench_polling(tmp: Path, clients: int, seconds: float, interval: float) -> None:
+    sys.path.insert(0, str(REPO))
+    from shsas_core.io import write_survey
+    from tests.conftest import make_survey
+
+    survey = write_survey(make_survey(), tmp / "tiny.h5")
+    proc, base = start_server(tmp / "data-poll", tmp / "poll.log")
+    try:
+        with open(survey, "rb") as fh:
+            job = httpx.post(base + "/reconstructions", files={"survey": ("tiny.h5", fh)},
+                             data={"spec": json.dumps(LONG_SPEC)}, timeout=60).json()
+        deadline = time.monotonic() + 60
+        while httpx.get(f"{base}/reconstructions/{job['id']}").json()["status"] != "running":
+            if time.monotonic() > deadline:
+                raise RuntimeError("job did not start")
+            time.sleep(0.2)
+        lat = asyncio.run(poll_clients(base, job["id"], clients, seconds, 0.0))
+        report(f"polling, {clients} clients, closed loop, job running", lat, seconds)
+        if interval:
+            lat = asyncio.run(poll_clients(base, job["id"], clients, seconds, interval))
+            report(f"polling, {clients} clients each every {interval:g} s, job running", lat, seconds)
+        final = httpx.get(f"{base}/reconstructions/{job['id']}").json()
+        print(f"  job still {final['status']} at progress {final['progress']:.3f} during the run")
+        httpx.post(f"{base}/reconstructions/{job['id']}/cancel")
+    finally:
+        stop(proc)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seconds", type=float, default=30.0, help="polling duration per mode (max 120)")
+    ap.add_argument("--clients", type=int, default=100)
+    ap.add_argument("--interval", type=float, default=1.0, help="paced mode: seconds between a client's polls (0 = skip)")
+    ap.add_argument("--upload-gb", type=float, default=1.0, help="survey size for the upload test (0 = skip)")
+    args = ap.parse_args()
+    seconds = min(args.seconds, 120.0)
+    print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start")
+    with tempfile.TemporaryDirectory(prefix="shsas-bench-") as d:
+        tmp = Path(d)
+        if args.upload_gb > 0:
+            bench_upload(tmp, args.upload_gb)
+        bench_polling(tmp, args.clients, seconds, args.interval)
+    print(f"load average {os.getloadavg()[0]:.1f} at end")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,98 @@
+"""Serve artifact files with ETag / If-None-Match (304) and single byte ranges (206, 416)."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+from starlette.responses import Response, StreamingResponse
+
+MEDIA_TYPES = {
+    ".glb": "model/gltf-binary",
+    ".ply": "application/octet-stream",
+    ".npy": "application/octet-stream",
+    ".json": "application/json",
+    ".html": "text/html; charset=utf-8",
+    ".png": "image/png",
+}
+CHUNK = 256 * 1024
+_RANGE = re.compile(r"^bytes=(\d*)-(\d*)$")
+
+
+def media_type(name: str) -> str:
+    return MEDIA_TYPES.get(Path(name).suffix.lower(), "application/octet-stream")
+
+
+def etag_of(path: Path) -> str:
+    """A strong validator from inode, size and mtime (artifacts are replaced, never edited)."""
+    st = path.stat()
+    raw = f"{st.st_ino}-{st.st_size}-{st.st_mtime_ns}".encode()
+    return '"' + hashlib.sha256(raw).hexdigest()[:32] + '"'
+
+
+def _matches(header: str, etag: str) -> bool:
+    if header.strip() == "*":
+        return True
+    tags = [t.strip().removeprefix("W/") for t in header.split(",")]
+    return etag in tags
+
+
+def _read(path: Path, start: int, length: int) -> Iterator[bytes]:
+    with open(path, "rb") as fh:
+        fh.seek(start)
+        left = length
+        while left > 0:
+            block = fh.read(min(CHUNK, left))
+            if not block:
+                break
+            left -= len(block)
+            yield block
+
+
+def file_response(path: Path, headers_in, download_name: str) -> Response:
+    """200 / 206 / 304 / 416 for ``path`` following RFC 9110 for one range."""
+    size = path.stat().st_size
+    etag = etag_of(path)
+    base = {
+        "ETag": etag, "Accept-Ranges": "bytes", "Cache-Control": "private, max-age=0, must-revalidate",
+        "Content-Disposition": f'inline; filename="{download_name}"',
+        "X-Content-Type-Options": "nosniff",
+        # Reports are HTML made from user data: never let them run script on this origin.
+        "Content-Security-Policy": "sandbox; default-src 'none'; img-src data:; style-src 'unsafe-inline'",
+    }
+    inm = headers_in.get("if-none-match")
+    if inm is not None and _matches(inm, etag):
+        return Response(status_code=304, headers={k: v for k, v in base.items() if k in ("ETag", "Cache-Control")})
+    mtype = media_type(download_name)
+    rng = headers_in.get("range")
+    if_range = headers_in.get("if-range")
+    if rng and (if_range is None or if_range.strip() == etag):
+        m = _RANGE.match(rng.strip())
+        if m and (m.group(1) or m.group(2)):
+            first, last = m.group(1), m.group(2)
+            if first:
+                start = int(first)
+                end = min(int(last), size - 1) if last else size - 1
+            else:  # suffix range: the last N bytes
+                n = int(last)
+                start, end = max(size - n, 0), size - 1
+            if start >= size or end < start or (not first and int(last) == 0):
+                return Response(status_code=416, headers={**base, "Content-Range": f"bytes */{size}"})
+            length = end - start + 1
+            return StreamingResponse(_read(path, start, length), status_code=206, media_type=mtype,
+                                     headers={**base, "Content-Range": f"bytes {start}-{end}/{size}",
+                                              "Content-Length": str(length)})
+        # Multiple or malformed ranges: RFC 9110 lets us ignore Range and send the whole file.
+    return StreamingResponse(_read(path, 0, size), status_code=200, media_type=mtype,
+                             headers={**base, "Content-Length": str(size)})
+
+
+def safe_artifact_path(out_dir: Path, name: str, allowed: list[str]) -> Path | None:
+    """The path of artifact ``name`` if the job lists it; names never come from the client as paths."""
+    if name not in allowed or os.sep in name or name.startswith("."):
+        return None
+    p = out_dir / name
+    return p if p.is_file() else None

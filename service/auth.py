@@ -1,0 +1,68 @@
+"""API-key authentication: every job belongs to the key that submitted it.
+
+Keys are sent as ``Authorization: Bearer shsas_<id>_<secret>`` (or ``X-API-Key``) and stored
+only as a hash (``shsas keys create|list|revoke``). While no key is active the service runs
+as the embedded single-user default and answers loopback clients only, as owner ``local``.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import time
+
+from fastapi import HTTPException, Request
+
+from worker.store import LOCAL_OWNER, JobStore
+
+
+def _token(request: Request) -> str | None:
+    auth = request.headers.get("authorization")
+    if auth:
+        scheme, _, value = auth.partition(" ")
+        if scheme.lower() == "bearer" and value.strip():
+            return value.strip()
+    key = request.headers.get("x-api-key")
+    return key.strip() if key else None
+
+
+def is_loopback(host: str | None) -> bool:
+    if not host:
+        return False
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+#: How long "are any keys active?" is remembered. A key's own validity (revocation) is
+#: checked on every request; only the keyless-loopback mode may outlive the first key by this.
+KEYS_CACHE_S = 1.0
+_keys_cache: dict[int, tuple[float, bool]] = {}
+
+
+def _has_active_keys(store: JobStore) -> bool:
+    now = time.monotonic()
+    hit = _keys_cache.get(id(store))
+    if hit is not None and now - hit[0] < KEYS_CACHE_S:
+        return hit[1]
+    value = store.has_active_keys()
+    _keys_cache[id(store)] = (now, value)
+    return value
+
+
+def owner_of(request: Request, store: JobStore) -> str:
+    """The job owner for this request, or HTTPException 401."""
+    token = _token(request)
+    if token:
+        owner = store.verify_key(token)
+        if owner is None:
+            raise HTTPException(401, "invalid or revoked API key", headers={"WWW-Authenticate": "Bearer"})
+        return owner
+    if _has_active_keys(store):
+        raise HTTPException(401, "API key required (Authorization: Bearer <key>)",
+                            headers={"WWW-Authenticate": "Bearer"})
+    if is_loopback(request.client.host if request.client else None):
+        return LOCAL_OWNER
+    raise HTTPException(401, "no API keys are configured, so only loopback clients are served; "
+                             "create one with `shsas keys create NAME` and send it as a Bearer token",
+                        headers={"WWW-Authenticate": "Bearer"})

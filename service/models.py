@@ -1,0 +1,92 @@
+"""Response models of the HTTP API (pydantic v2; they make the OpenAPI schema at /docs)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+from worker.store import Job
+
+Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+
+
+def iso(ts: float | None) -> str | None:
+    return None if ts is None else datetime.fromtimestamp(ts, UTC).isoformat().replace("+00:00", "Z")
+
+
+class ArtifactLink(BaseModel):
+    name: str = Field(description="server-made file name, e.g. shsas_mesh.glb")
+    url: str
+
+
+class Artifact(ArtifactLink):
+    size: int = Field(description="bytes")
+    media_type: str
+    etag: str
+
+
+class JobInput(BaseModel):
+    digest: str = Field(description="sha256 of the uploaded survey file")
+    bytes: int
+    name: str = Field(description="server-made name of the stored input")
+
+
+class JobOut(BaseModel):
+    """A reconstruction job as the API shows it."""
+
+    id: str
+    status: Status
+    progress: float = Field(ge=0, le=1, description="overall fraction done")
+    stage: str | None = Field(description="current pipeline stage, e.g. fit:shsas")
+    iterations_per_s: float | None = Field(None, description="latest training speed reported by the pipeline")
+    live_metrics: dict[str, float] = Field(default_factory=dict, description="latest progress metrics")
+    attempts: int = Field(description="deliveries so far; > 1 after a worker was lost and the job resumed")
+    cancel_requested: bool
+    created_at: str | None
+    started_at: str | None
+    finished_at: str | None
+    updated_at: str | None
+    error: str | None
+    spec: dict[str, Any]
+    input: JobInput
+    metrics: dict[str, dict[str, float]] | None = Field(None, description="per-method metrics summary")
+    artifacts: list[ArtifactLink]
+    links: dict[str, str]
+
+    @classmethod
+    def from_job(cls, job: Job, base: str = "") -> JobOut:
+        url = f"{base}/reconstructions/{job.id}"
+        lm = job.live_metrics
+        rate = next((lm[k] for k in ("it_per_s", "iters_per_s", "it/s") if k in lm), None)
+        return cls(
+            id=job.id, status=job.status, progress=job.progress, stage=job.stage, iterations_per_s=rate,  # type: ignore[arg-type]
+            live_metrics=lm, attempts=job.attempts, cancel_requested=job.cancel_requested,
+            created_at=iso(job.created_at), started_at=iso(job.started_at), finished_at=iso(job.finished_at),
+            updated_at=iso(job.updated_at), error=job.error, spec=job.spec,
+            input=JobInput(digest=job.input_digest, bytes=job.input_bytes, name=job.input_name),
+            metrics=job.metrics,
+            artifacts=[ArtifactLink(name=a, url=f"{url}/artifacts/{a}") for a in job.artifacts],
+            links={"self": url, "cancel": f"{url}/cancel", "artifacts": f"{url}/artifacts"},
+        )
+
+
+class JobPage(BaseModel):
+    items: list[JobOut]
+    next_cursor: str | None = Field(description="pass as ?cursor= for the next page; null on the last")
+
+
+class ArtifactList(BaseModel):
+    job_id: str
+    status: Status
+    items: list[Artifact]
+
+
+class Health(BaseModel):
+    status: str
+    checks: dict[str, str] = Field(default_factory=dict)
+
+
+class ErrorOut(BaseModel):
+    detail: str

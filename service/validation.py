@@ -1,0 +1,49 @@
+"""Validate an uploaded survey in a separate, resource-limited process (design §6).
+
+The API process never opens uploaded HDF5 itself: a crafted file could exhaust memory or
+trip a bug in the HDF5 library. The child gets ``RLIMIT_AS`` (address space) and
+``RLIMIT_CPU`` limits (it sets them on itself before importing anything; preexec_fn is
+unsafe in a threaded server) plus a wall-clock timeout, and answers one JSON line.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from .uploads import UploadError
+
+
+def validate_in_child(path: Path, memory_bytes: int, timeout_s: float) -> dict:
+    """Validate ``path`` in a child; return ``{"format", "summary"}``.
+
+    Raises:
+        UploadError: 422 with the validator's message, 413 past the memory limit, 422 on timeout.
+    """
+    env = {k: v for k, v in os.environ.items() if k in ("PATH", "PYTHONPATH", "HOME", "LANG", "TMPDIR")}
+    # One thread each: the limit is per process and BLAS pools reserve address space per thread.
+    env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", HDF5_USE_FILE_LOCKING="FALSE")
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "service.validate_child", str(path), str(memory_bytes), str(int(timeout_s) + 1)],
+            capture_output=True, timeout=timeout_s, env=env, cwd=str(Path(__file__).resolve().parents[1]),
+            check=False)
+    except subprocess.TimeoutExpired:
+        raise UploadError(422, f"survey: validation took longer than {timeout_s:g} s "
+                               "(SHSAS_VALIDATE_TIMEOUT_S); the file is too large or malformed") from None
+    line = proc.stdout.decode("utf-8", "replace").strip().splitlines()[-1:] or [""]
+    try:
+        out = json.loads(line[0])
+    except json.JSONDecodeError:
+        if proc.returncode < 0 or b"MemoryError" in proc.stderr or b"Cannot allocate" in proc.stderr:
+            raise UploadError(413, "survey: validating it needs more memory than SHSAS_VALIDATE_MEMORY_BYTES "
+                                   "allows") from None
+        tail = proc.stderr.decode("utf-8", "replace").strip().splitlines()[-1:] or ["no output"]
+        raise UploadError(422, f"file: could not be read as a survey (validator exited {proc.returncode}: "
+                               f"{tail[0][:300]})") from None
+    if not out.get("ok"):
+        raise UploadError(int(out.get("status", 422)), str(out.get("error")))
+    return {"format": out["format"], "summary": out["summary"]}

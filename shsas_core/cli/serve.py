@@ -1,0 +1,58 @@
+"""`shsas serve`: the HTTP API, plus the embedded local worker when no broker is configured."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "serve", help="run the HTTP API (and, without SHSAS_BROKER_URL, a local worker)",
+        description="Start the shsas HTTP service (FastAPI; OpenAPI docs at /docs). Configuration comes "
+        "from SHSAS_* environment variables (see docs/service.md): data in SHSAS_DATA_DIR, jobs in "
+        "SHSAS_DATABASE_URL (default: SQLite in the data dir). With SHSAS_BROKER_URL unset this one "
+        "command is the whole service: jobs queue in the job table and a local worker child process "
+        "runs them. With SHSAS_BROKER_URL=redis://... it serves the API only and `shsas worker` "
+        "processes run the jobs. Needs the 'service' extra (pip install shsas[service]).")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1; without API keys "
+                   "only loopback clients are served)")
+    p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    p.add_argument("--data-dir", help="overrides SHSAS_DATA_DIR")
+    p.add_argument("--no-worker", action="store_true", help="do not start the embedded local worker")
+    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..errors import ShsasError
+
+    if args.data_dir:
+        os.environ["SHSAS_DATA_DIR"] = args.data_dir
+    try:
+        import uvicorn
+
+        from service.app import create_app
+        from worker.local import LocalWorkerSupervisor
+        from worker.settings import get_settings
+    except ImportError as exc:
+        raise ShsasError(f"serve: the service extra is not installed ({exc.name}); "
+                         "pip install 'shsas[service]'") from None
+    import pydantic
+
+    try:
+        settings = get_settings()
+    except pydantic.ValidationError as exc:
+        err = exc.errors()[0]
+        raise ShsasError(f"settings: SHSAS_{'_'.join(map(str, err['loc'])).upper()}: {err['msg']}") from None
+    app = create_app(settings)
+    sup = LocalWorkerSupervisor().start() if settings.embedded and not args.no_worker else None
+    mode = "embedded local worker" if sup else ("broker " + settings.broker_url.split("@")[-1]
+                                                if settings.broker_url else "no worker")
+    print(f"shsas serve: http://{args.host}:{args.port}/docs  data={settings.data_dir}  ({mode})", flush=True)
+    try:
+        uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level, access_log=False)
+    finally:
+        if sup:
+            sup.stop()
+    return 0

@@ -1,0 +1,446 @@
+"""One reconstruction job, end to end (design §2): the function the CLI and the worker call.
+
+``run(spec, survey, out_dir)``:
+
+1. read the survey (when given a path) and split off held-out pings (``spec.holdout_fraction``);
+2. pulse deconvolution once (``spec.deconvolution``) → ``s_PD`` per ping, checkpointed;
+3. every requested method: ``backprojection`` (complex image), ``reed`` (neural field, SH degree 0)
+   and ``shsas`` (SH degree ``spec.sh_degree``) → a volume on ``Grid.over(scene_box, spec.grid)``;
+4. extraction at τ (``spec.threshold`` or the rule of :mod:`shsas_core.extract`) → point cloud and
+   mesh; export to PLY/GLB/NPY;
+5. metrics against the ground truth when the survey has one (protocol of :mod:`shsas_core.metrics`);
+6. ``report.json`` + ``report.html``.
+
+Idempotent and resumable: every artifact name is fixed (``{method}_volume.npy``,
+``{method}_pointcloud.ply``, ``{method}_mesh.ply``, ``{method}_mesh.glb``, ``report.json``, ...),
+written to a temporary file and renamed; the trainer checkpoints under
+``out_dir/checkpoints/{method}``; a finished method leaves ``checkpoints/{method}/done.json`` and
+is skipped when the job is run again in the same ``out_dir`` with the same spec and survey (a
+different spec or survey clears the checkpoints first). ``should_stop()`` is checked between
+steps and inside every long step; it raises :class:`~shsas_core.errors.Cancelled`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from .errors import ShsasError
+from .export import (
+    read_volume_npy,
+    write_json,
+    write_mesh_glb,
+    write_mesh_ply,
+    write_point_cloud_ply,
+    write_volume_npy,
+)
+from .extract import ExtractConfig, extract, field_volume
+from .metrics import GroundTruth, finite_or_none, score_reconstruction
+from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
+from .report import MethodReport, Report, ReportFigures, SignalFit, write_report
+from .spec import ReconstructionSpec
+from .survey import Survey
+from .volume import Grid, Volume
+
+#: Relative cost of each stage, for the overall progress fraction.
+_WEIGHTS = {"deconvolution": 0.05, "backprojection": 0.15, "reed": 1.0, "shsas": 1.0, "report": 0.05}
+#: Bump when extraction changes: finished runs then re-extract from their saved volumes.
+EXTRACT_VERSION = 2
+#: Pings whose signal fit is drawn in the report.
+_FIT_PINGS = 3
+#: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
+#: rendering a whole ping costs about as much as a few hundred training iterations on a CPU.
+_MAX_NOVEL_PINGS = 32
+
+
+def _evenly(idx: np.ndarray, k: int) -> np.ndarray:
+    """At most ``k`` entries of ``idx``, evenly spaced."""
+    if len(idx) <= k:
+        return np.asarray(idx)
+    return np.asarray(idx)[np.linspace(0, len(idx) - 1, k).round().astype(np.int64)]
+
+
+class PipelineResult(BaseModel):
+    """What :func:`run` produced."""
+
+    out_dir: str
+    artifacts: list[str] = Field(description="file names in out_dir, sorted")
+    metrics: dict[str, dict[str, float]] = Field(
+        description="method -> metric -> value: pc_*/mesh_* geometry metrics when the survey has ground "
+        "truth (NaN = undefined), plus threshold, points, faces, seconds")
+    report_json: str
+    report_html: str
+    timings: dict[str, float] = Field(description="seconds per stage")
+
+
+def artifact_names(method: str) -> dict[str, str]:
+    """The fixed file names one method writes into ``out_dir``."""
+    return {
+        "volume": f"{method}_volume.npy",
+        "grid": f"{method}_volume.json",
+        "pointcloud": f"{method}_pointcloud.ply",
+        "mesh_ply": f"{method}_mesh.ply",
+        "mesh_glb": f"{method}_mesh.glb",
+    }
+
+
+def sh_degree_of(method: str, spec: ReconstructionSpec) -> int | None:
+    return {"backprojection": None, "reed": 0, "shsas": spec.sh_degree}[method]
+
+
+def holdout_split(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train, held-out) ping indices, sorted; a seeded random ``fraction`` is held out."""
+    k = math.floor(n * fraction)
+    if k <= 0:
+        return np.arange(n), np.zeros(0, dtype=np.int64)
+    if n - k < 1:
+        raise ShsasError(f"holdout_fraction: {fraction} leaves no training pings out of {n}")
+    held = np.sort(np.random.default_rng(seed).choice(n, size=k, replace=False))
+    return np.setdiff1d(np.arange(n), held), held
+
+
+def load_input(survey: Survey | str | os.PathLike) -> Survey:
+    if isinstance(survey, Survey):
+        if survey.samples is None:
+            raise ShsasError("survey: samples were not loaded (read it with load_samples=True)")
+        return survey
+    from .importers import load_survey
+
+    return load_survey(survey)
+
+
+def survey_fingerprint(survey: Survey) -> str:
+    """A digest of the survey's geometry, metadata and samples (resume key)."""
+    h = hashlib.sha256()
+    h.update(survey.meta.model_dump_json().encode())
+    for a in (survey.tx, survey.rx, survey.t0, survey.samples, survey.gt_vertices):
+        if a is not None:
+            h.update(str(a.shape).encode())
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:32]
+
+
+def run(
+    spec: ReconstructionSpec,
+    survey: Survey | str | os.PathLike,
+    out_dir: str | os.PathLike,
+    progress: ProgressFn = no_progress,
+    should_stop: StopFn = never_stop,
+) -> PipelineResult:
+    """Run a reconstruction job and write its artifacts into ``out_dir`` (see module doc).
+
+    Args:
+        spec: what to run.
+        survey: a loaded :class:`Survey` or a path to any format ``shsas convert`` reads.
+        out_dir: output folder (created); re-running in the same folder resumes.
+        progress: ``progress(fraction of the whole job, stage, metrics)``.
+        should_stop: polled between and within steps; True cancels (raises ``Cancelled``).
+    Returns:
+        :class:`PipelineResult`.
+    Raises:
+        ShsasError: bad input (survey, spec, device); Cancelled: on request.
+    """
+    from .device import resolve_device
+
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    out = Path(out_dir)
+    device = resolve_device(spec.device)
+    t = time.perf_counter()
+    survey = load_input(survey)
+    timings["load"] = time.perf_counter() - t
+    out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
+    ckpt = out / "checkpoints"
+    _check_resume_key(ckpt, spec, survey)
+    check_stop(should_stop)
+
+    total = _WEIGHTS["deconvolution"] + sum(_WEIGHTS[m] for m in spec.methods) + _WEIGHTS["report"]
+    bounds: dict[str, tuple[float, float]] = {}
+    acc = 0.0
+    for stage in ("deconvolution", *spec.methods, "report"):
+        w = _WEIGHTS[stage] / total
+        bounds[stage] = (acc, acc + w)
+        acc += w
+
+    # -- deconvolution (once, cached) -------------------------------------------------------
+    t = time.perf_counter()
+    s_pd = _deconvolve(survey, spec, device, ckpt, sub_progress(progress, *bounds["deconvolution"]), should_stop)
+    timings["deconvolution"] = time.perf_counter() - t
+    train_idx, held_idx = holdout_split(survey.num_pings, spec.holdout_fraction, spec.seed)
+    train = survey.subset(train_idx)
+    train.extras["deconvolved"] = s_pd[train_idx]
+    grid = Grid.over(survey.meta.scene_box, spec.grid)
+    gt = None
+    if survey.has_ground_truth:
+        t = time.perf_counter()
+        gt = GroundTruth.from_survey(survey)
+        timings["ground_truth"] = time.perf_counter() - t
+
+    figures = ReportFigures(gt_mesh=survey.ground_truth_mesh())
+    reports: list[MethodReport] = []
+    for method in spec.methods:
+        check_stop(should_stop)
+        prog = sub_progress(progress, *bounds[method])
+        rep, vol, mesh_, fit = _run_method(method, spec, survey, train, s_pd, train_idx, held_idx, grid,
+                                           gt, device, out, ckpt / method, prog, should_stop)
+        reports.append(rep)
+        timings[method] = rep.seconds
+        figures.volumes[method] = vol
+        figures.meshes[method] = mesh_
+        if fit is not None:
+            figures.signal_fits[method] = fit
+
+    # -- report -----------------------------------------------------------------------------
+    check_stop(should_stop)
+    progress(bounds["report"][0], "report", {})
+    from .io import summarize
+
+    t = time.perf_counter()
+    artifacts = sorted({a for r in reports for a in r.artifacts.values()} | {"report.json", "report.html"})
+    timings["total"] = time.perf_counter() - t_start
+    report = Report(spec=spec, survey=summarize(survey), ground_truth=gt is not None, timings=timings,
+                    methods=reports, artifacts=artifacts)
+    json_path, html_path = write_report(report, figures, out)
+    timings["report"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - t_start
+    # the HTML was rendered before its own time was known; report.json gets the final figures
+    report = report.model_copy(update={"timings": timings})
+    _rewrite_json(report, out / "report.json")
+    progress(1.0, "done", {"seconds": timings["total"]})
+    metrics = report.metrics()
+    for r in reports:  # also without ground truth: what was extracted and how long it took
+        metrics[r.method].update({"threshold": r.threshold, "points": float(r.points),
+                                  "faces": float(r.faces), "seconds": r.seconds})
+    return PipelineResult(out_dir=str(out), artifacts=artifacts, metrics=metrics,
+                          report_json=str(json_path), report_html=str(html_path), timings=timings)
+
+
+def _rewrite_json(report: Report, path: Path) -> None:
+    from .export import write_text
+
+    write_text(report.model_dump_json(indent=2), path)
+
+
+def _check_resume_key(ckpt: Path, spec: ReconstructionSpec, survey: Survey) -> None:
+    """Clear checkpoints made for another spec or survey, then record this run's key."""
+    # the threshold only affects extraction, which is redone from the saved volume (see
+    # _run_method), so changing it keeps the reconstructions
+    key = {"spec": spec.model_dump(mode="json", exclude={"threshold"}), "survey": survey_fingerprint(survey)}
+    kp = ckpt / "run_key.json"
+    if kp.exists():
+        try:
+            same = json.loads(kp.read_text()) == key
+        except (OSError, ValueError):
+            same = False
+        if not same:
+            shutil.rmtree(ckpt, ignore_errors=True)
+    ckpt.mkdir(parents=True, exist_ok=True)
+    if not kp.exists():
+        write_json(key, kp)
+
+
+def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Path,
+                progress: ProgressFn, should_stop: StopFn) -> np.ndarray:
+    from .deconv import DeconvConfig, deconvolve
+
+    path = ckpt / "deconvolved.npy"
+    if path.exists():
+        arr = np.load(path, allow_pickle=False)
+        if arr.shape == survey.shape:
+            progress(1.0, "deconvolution", {"cached": 1.0})
+            return arr
+    cfg = DeconvConfig(method=spec.deconvolution)
+    if spec.deconvolution == "neural":
+        cfg = cfg.model_copy(update={"neural": cfg.neural.model_copy(update={"seed": spec.seed})})
+    s_pd = np.asarray(deconvolve(survey, cfg, device=device, progress=progress, should_stop=should_stop),
+                      dtype=np.complex64)
+    from .export import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.save(fh, s_pd)
+    return s_pd
+
+
+def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Survey, s_pd: np.ndarray,
+                train_idx: np.ndarray, held_idx: np.ndarray, grid: Grid, gt: GroundTruth | None,
+                device: Any, out: Path, ckpt: Path, progress: ProgressFn,
+                should_stop: StopFn) -> tuple[MethodReport, Volume, Any, SignalFit | None]:
+    """Reconstruct, extract, export and score one method (or reload it when already done)."""
+    names = artifact_names(method)
+    done = ckpt / "done.json"
+    extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION}
+    if done.exists() and all((out / n).exists() for n in names.values()):
+        rep = MethodReport.model_validate_json(done.read_text())
+        vol = read_volume_npy(out / names["volume"])
+        fit = _load_fit(ckpt)
+        if _read_json(ckpt / "extract.json") == extract_key:
+            import trimesh
+
+            mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
+            progress(1.0, method, {"cached": 1.0})
+            return rep, vol, mesh_, fit
+        # reconstruction done, extraction settings (or code) changed: extract again, no refit
+        progress(0.9, method, {"cached": 1.0})
+        t0 = time.perf_counter() - rep.seconds
+        rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, rep.loss_curve,
+                             rep.signal_errors, progress, should_stop)
+        return rep, vol, mesh_, fit
+
+    ckpt.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    loss_curve: list[tuple[int, float]] = []
+    signal_errs: dict[str, float] = {}
+    fit_fig: SignalFit | None = None
+    if method == "backprojection":
+        from .backprojection import backproject_survey
+
+        vol = backproject_survey(train, grid, train.extras["deconvolved"], device=device,
+                                 progress=sub_progress(progress, 0.0, 0.8), should_stop=should_stop)
+    else:
+        field, result = _fit_neural(method, spec, survey, s_pd, train_idx, device, ckpt,
+                                    sub_progress(progress, 0.0, 0.8), should_stop)
+        loss_curve = _loss_curve(result)
+        check_stop(should_stop)
+        progress(0.8, method, {"stage": 1.0})
+        vol = field_volume(field, grid, name=f"{method} |sigma_DC|")
+        amplitude = float(getattr(result, "amplitude", 1.0) or 1.0)
+        # held-out pings give the novel-view errors and the figure; else a few training pings
+        scored = _evenly(held_idx, _MAX_NOVEL_PINGS)
+        fit_pings = scored if len(scored) else _evenly(train_idx, _FIT_PINGS)
+        check_stop(should_stop)
+        pred = _render(field, survey, fit_pings, spec, amplitude, device)
+        if len(held_idx):
+            from .metrics import signal_errors
+
+            signal_errs = signal_errors(pred, s_pd[scored])
+        show = slice(0, _FIT_PINGS)
+        fit_fig = SignalFit(times=survey.times()[fit_pings[show]] * 1e3, measured=s_pd[fit_pings[show]],
+                            predicted=pred[show], pings=[int(i) for i in fit_pings[show]])
+        _save_fit(ckpt, fit_fig)
+    check_stop(should_stop)
+    progress(0.9, method, {})
+    rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, loss_curve,
+                         signal_errs, progress, should_stop)
+    return rep, vol, mesh_, fit_fig
+
+
+def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth | None, out: Path,
+            ckpt: Path, names: dict[str, str], extract_key: dict[str, Any], t0: float,
+            loss_curve: list[tuple[int, float]], signal_errs: dict[str, float], progress: ProgressFn,
+            should_stop: StopFn) -> tuple[MethodReport, Any]:
+    """Extract, export, score, and mark the method done."""
+    from .export import write_text
+
+    ecfg = ExtractConfig(threshold=spec.threshold)
+    tau, cloud, mesh_ = extract(vol, ecfg)
+    write_volume_npy(vol, out / names["volume"])
+    write_point_cloud_ply(cloud, out / names["pointcloud"])
+    write_mesh_ply(mesh_, out / names["mesh_ply"])
+    glb = write_mesh_glb(mesh_, out / names["mesh_glb"])
+    metrics: dict[str, float | None] = {}
+    if gt is not None:
+        check_stop(should_stop)
+        metrics = finite_or_none(score_reconstruction(cloud.points, mesh_, gt))
+    rep = MethodReport(method=method, sh_degree=sh_degree_of(method, spec), threshold=tau,
+                       points=len(cloud), faces=len(mesh_.faces), seconds=time.perf_counter() - t0,
+                       metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
+                       artifacts=names, origin_offset=glb["origin_offset"])
+    write_json(extract_key, ckpt / "extract.json")
+    write_text(rep.model_dump_json(indent=2), ckpt / "done.json")
+    progress(1.0, method, {})
+    return rep, mesh_
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
+                train_idx: np.ndarray, device: Any, ckpt: Path, progress: ProgressFn,
+                should_stop: StopFn) -> tuple[Any, Any]:
+    """Build the SH field for ``method`` and fit it to the training pings' s_PD (checkpointed
+    under ``ckpt``; a compatible checkpoint there is resumed)."""
+    import torch
+
+    from .fields import FieldConfig, SHField
+    from .train import fit
+
+    torch.manual_seed(spec.seed)
+    fcfg = FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box,
+                       encoding=encoding_config(spec.encoding))
+    field = SHField(fcfg).to(device)
+    cfg = train_config(spec)
+    result = fit(field, survey, s_pd, cfg, progress=progress, should_stop=should_stop,
+                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}")
+    return field, result
+
+
+#: The ``small`` encoding: the setting the trainer's sphere convergence test uses on a CPU.
+SMALL_ENCODING = {"n_levels": 8, "log2_table_size": 13, "base_resolution": 8, "finest_resolution": 128}
+
+
+def encoding_config(name: str) -> Any:
+    """Hash-encoding config for ``spec.encoding`` (``cpu``, ``small`` or ``paper_gpu``)."""
+    from .fields import HashEncodingConfig, encoding_preset
+
+    if name == "small":
+        return HashEncodingConfig(**SMALL_ENCODING)
+    return encoding_preset(name)
+
+
+def train_config(spec: ReconstructionSpec) -> Any:
+    """The trainer's config from the job spec (fields the trainer knows are passed through)."""
+    from .train import TrainConfig
+
+    want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays, "lr": spec.lr,
+            "pings_per_batch": spec.pings_per_batch, "device": spec.device,
+            # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
+            "checkpoint_every": max(10, min(500, spec.iters // 10))}
+    fields = TrainConfig.model_fields
+    return TrainConfig(**{k: v for k, v in want.items() if k in fields})
+
+
+def _render(field: Any, survey: Survey, pings: np.ndarray, spec: ReconstructionSpec, amplitude: float,
+            device: Any) -> np.ndarray:
+    from .render import RenderConfig, render_transients
+
+    cfg = RenderConfig(num_rays=min(spec.num_rays, 512))
+    return render_transients(field, survey, pings, cfg, amplitude=amplitude, device=device, seed=spec.seed)
+
+
+def _loss_curve(result: Any, max_points: int = 400) -> list[tuple[int, float]]:
+    """(iteration, total loss) from ``FitResult.loss_history``, thinned to ``max_points``."""
+    hist = list(getattr(result, "loss_history", None) or [])
+    step = max(1, math.ceil(len(hist) / max_points))
+    keep = list(range(0, len(hist), step))
+    if hist and keep[-1] != len(hist) - 1:
+        keep.append(len(hist) - 1)
+    return [(i, float(hist[i])) for i in keep if math.isfinite(float(hist[i]))]
+
+
+def _save_fit(ckpt: Path, fit: SignalFit) -> None:
+    from .export import atomic_path
+
+    with atomic_path(ckpt / "signal_fit.npz") as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, times=fit.times, measured=fit.measured, predicted=fit.predicted,
+                 pings=np.asarray(fit.pings))
+
+
+def _load_fit(ckpt: Path) -> SignalFit | None:
+    p = ckpt / "signal_fit.npz"
+    if not p.exists():
+        return None
+    with np.load(p, allow_pickle=False) as z:
+        return SignalFit(z["times"], z["measured"], z["predicted"], [int(i) for i in z["pings"]])

@@ -1,0 +1,88 @@
+"""`shsas reconstruct`, `shsas evaluate` and `shsas demo` through the real CLI entry point."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from shsas_core.cli import main
+from shsas_core.io import write_survey
+from shsas_core.simulate import simulate_shape
+
+
+@pytest.fixture(scope="module")
+def survey_file(tmp_path_factory):
+    s = simulate_shape("cube", heights=2, angles=36, snr_db=20.0, seed=1)
+    return write_survey(s, tmp_path_factory.mktemp("survey") / "cube.h5"), s
+
+
+def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")  # rich wraps tables to the terminal width
+    path, survey = survey_file
+    out = tmp_path / "out"
+    rc = main(["reconstruct", str(path), "--methods", "backprojection", "--grid", "20", "--device", "cpu",
+               "--out", str(out), "--quiet"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "backprojection" in text and "report.html" in text and "Chamfer" in text
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["spec"]["grid"] == 20 and rep["spec"]["methods"] == ["backprojection"]
+    # evaluate the folder against the survey: same numbers as the pipeline computed
+    rc = main(["evaluate", str(out), "--gt", str(path), "--json"])
+    assert rc == 0
+    ev = json.loads(capsys.readouterr().out)
+    for k, v in rep["methods"][0]["metrics"].items():
+        assert ev["backprojection"][k] == pytest.approx(v, rel=1e-9, abs=1e-12), k
+    # a single mesh file against a GT mesh file with an explicit box
+    gt_path = tmp_path / "gt.ply"
+    trimesh.Trimesh(survey.gt_vertices, survey.gt_faces).export(gt_path)
+    box = ",".join(str(x) for x in (*survey.meta.scene_box.min, *survey.meta.scene_box.max))
+    rc = main(["evaluate", str(out / "backprojection_mesh.ply"), "--gt", str(gt_path), f"--box={box}", "--json"])
+    assert rc == 0
+    one = json.loads(capsys.readouterr().out)["backprojection_mesh"]
+    assert one["mesh_chamfer_l2"] == pytest.approx(rep["methods"][0]["metrics"]["mesh_chamfer_l2"], rel=1e-5)  # GT via float32 PLY
+    # a point-cloud PLY is scored as points
+    rc = main(["evaluate", str(out / "backprojection_pointcloud.ply"), "--gt", str(gt_path), f"--box={box}", "--json"])
+    assert rc == 0
+    pc = json.loads(capsys.readouterr().out)["backprojection_pointcloud"]
+    assert np.isclose(pc["pc_iou"], rep["methods"][0]["metrics"]["pc_iou"])
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["reconstruct", "missing.h5", "--out", "o"], "missing.h5"),
+    (["reconstruct", "x.h5", "--out", "o", "--methods", "backprojection,nope"], "--methods"),
+    (["reconstruct", "x.h5", "--out", "o", "--threshold", "1.5"], "--threshold"),
+    (["evaluate", "nowhere", "--gt", "sphere"], "nowhere"),
+    (["evaluate", ".", "--gt", "sphere", "--box", "1,2"], "--box"),
+])
+def test_bad_input_exits_2_with_one_line(argv, needle, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err
+
+
+@pytest.mark.slow  # 5 s on 2 cores, a minute and more when they are shared
+def test_demo_tiny(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")
+    out = tmp_path / "demo"
+    rc = main(["demo", "--out", str(out), "--shape", "cube", "--heights", "1", "--angles", "24",
+               "--iters", "2", "--grid", "10", "--bins", "4", "--rays", "8", "--device", "cpu", "--quiet"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "report.html" in text and "shsas" in text and "Chamfer" in text
+    rep = json.loads((out / "report.json").read_text())
+    assert [m["method"] for m in rep["methods"]] == ["backprojection", "reed", "shsas"]
+    assert (out / "survey.h5").is_file()
+
+
+def test_demo_defaults_are_a_valid_spec():
+    import argparse
+
+    from shsas_core.cli.demo import DEMO_SPEC
+    from shsas_core.cli.reconstruct import spec_from_args
+
+    spec = spec_from_args(argparse.Namespace(), **DEMO_SPEC)
+    assert spec.methods == ["backprojection", "reed", "shsas"] and spec.sh_degree == 3
+    assert spec_from_args(argparse.Namespace(iters=7), **DEMO_SPEC).iters == 7  # options win

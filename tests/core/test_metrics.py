@@ -1,0 +1,168 @@
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from shsas_core.errors import ShsasError
+from shsas_core.metrics import (
+    GroundTruth,
+    OccupancyGrid,
+    chamfer,
+    fscore,
+    nn_distances,
+    occupancy_scores,
+    point_triangle_distance,
+    sample_surface,
+    score_mesh,
+    score_points,
+    signal_errors,
+    within_distance_of_mesh,
+)
+from shsas_core.survey import SceneBox
+
+
+def brute_nn(a, b):
+    return np.array([min(np.linalg.norm(p - q) for q in b) for p in a])
+
+
+def test_nn_distances_match_brute_force():
+    rng = np.random.default_rng(1)
+    a, b = rng.random((60, 3)), rng.random((45, 3))
+    np.testing.assert_allclose(nn_distances(a, b), brute_nn(a, b), rtol=1e-12)
+
+
+def test_chamfer_and_fscore_match_brute_force():
+    rng = np.random.default_rng(2)
+    a, b = rng.random((50, 3)) * 0.02, rng.random((70, 3)) * 0.02
+    dab, dba = brute_nn(a, b), brute_nn(b, a)
+    c = chamfer(a, b)
+    assert c["chamfer_l2"] == pytest.approx(np.mean(dab**2) + np.mean(dba**2), rel=1e-12)
+    assert c["chamfer_l1"] == pytest.approx(0.5 * (dab.mean() + dba.mean()), rel=1e-12)
+    f = fscore(a, b, tau=0.004)
+    p, r = np.mean(dab <= 0.004), np.mean(dba <= 0.004)
+    assert f["fscore_precision"] == pytest.approx(p)
+    assert f["fscore_recall"] == pytest.approx(r)
+    assert f["fscore"] == pytest.approx(2 * p * r / (p + r))
+
+
+def test_chamfer_of_shifted_sets_is_the_shift():
+    # every point's nearest neighbour is its own shifted copy when the shift is small vs spacing
+    g = np.stack(np.meshgrid(*[np.arange(5) * 0.1] * 3, indexing="ij"), -1).reshape(-1, 3)
+    c = chamfer(g, g + np.array([0.01, 0, 0]))
+    assert c["chamfer_l2"] == pytest.approx(2 * 0.01**2)
+    assert c["chamfer_l1"] == pytest.approx(0.01)
+    assert chamfer(np.zeros((0, 3)), g)["chamfer_l2"] == math.inf
+
+
+def test_sample_surface_is_on_the_mesh_area_weighted_and_seeded():
+    m = trimesh.creation.box(extents=(0.2, 0.1, 0.1))
+    p = sample_surface(m.vertices, m.faces, 20000, seed=0)
+    np.testing.assert_array_equal(p, sample_surface(m.vertices, m.faces, 20000, seed=0))
+    h = np.array([0.1, 0.05, 0.05])
+    # every point lies on the box surface: max over axes of |p|/h equals 1
+    np.testing.assert_allclose(np.max(np.abs(p) / h, axis=1), 1.0, atol=1e-12)
+    # the two 0.1 x 0.1 faces (x = ±0.1) hold 0.02 / 0.1 of the area
+    share = np.mean(np.isclose(np.abs(p[:, 0]), 0.1))
+    assert share == pytest.approx(0.2, abs=0.01)
+
+
+def test_point_triangle_distance_analytic():
+    a, b, c = np.array([0.0, 0, 0]), np.array([1.0, 0, 0]), np.array([0.0, 1, 0])
+    pts = np.array([[0.2, 0.2, 0.5],      # above the face
+                    [-1.0, -1.0, 0.0],    # vertex region of a
+                    [2.0, 0.0, 1.0],      # vertex region of b
+                    [0.5, -2.0, 0.0],     # edge ab
+                    [1.0, 1.0, 0.0],      # edge bc
+                    [0.1, 0.1, 0.0]])     # on the triangle
+    exp = [0.5, math.sqrt(2), math.sqrt(2), 2.0, math.sqrt(0.5), 0.0]
+    n = len(pts)
+    d = point_triangle_distance(pts, np.tile(a, (n, 1)), np.tile(b, (n, 1)), np.tile(c, (n, 1)))
+    np.testing.assert_allclose(d, exp, atol=1e-12)
+
+
+def test_within_distance_of_cube_matches_box_distance():
+    m = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-0.08, 0.08, (4000, 3))
+    q = np.abs(p) - 0.05
+    outside = np.linalg.norm(np.maximum(q, 0), axis=1)
+    inside = -np.max(q, axis=1)
+    dist = np.where(np.all(q <= 0, axis=1), inside, outside)  # unsigned distance to the surface
+    got = within_distance_of_mesh(p, m.vertices, m.faces, 0.01)
+    np.testing.assert_array_equal(got, dist <= 0.01)
+
+
+def test_occupancy_scores_known_sets():
+    gt = np.zeros((4, 4, 4), bool)
+    gt[:2] = True          # 32 voxels
+    pred = np.zeros_like(gt)
+    pred[1:3] = True       # 32 voxels, 16 shared
+    s = occupancy_scores(pred, gt)
+    assert s["iou"] == pytest.approx(16 / 48)
+    assert s["precision"] == pytest.approx(0.5)
+    assert s["recall"] == pytest.approx(0.5)
+    assert s["f1"] == pytest.approx(0.5)
+    with pytest.raises(ShsasError):
+        occupancy_scores(pred[:2], gt)
+
+
+def test_gt_occupancy_equals_contains_or_band_for_watertight_mesh():
+    box = SceneBox(min=(-0.06, -0.06, 0.0), max=(0.06, 0.06, 0.1))
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.035)
+    m.apply_translation([0.003, -0.002, 0.05])
+    grid = OccupancyGrid(box, 0.005)
+    occ = grid.from_mesh(m.vertices, m.faces)
+    c = grid.centres()
+    ref = m.contains(c) | within_distance_of_mesh(c, m.vertices, m.faces, 0.005)
+    np.testing.assert_array_equal(occ.ravel(), ref)
+    assert occ.sum() > 1000
+
+
+def test_two_cubes_offset_by_known_distance():
+    """Two unit-style cubes (4 cm) offset along x by 3 mm: point metrics follow analytically."""
+    box = SceneBox(min=(-0.05, -0.05, 0.0), max=(0.05, 0.05, 0.1))
+    a = trimesh.creation.box(extents=(0.04, 0.04, 0.04))
+    a.apply_translation([0.0012, 0.0007, 0.0503])  # faces off the voxel boundaries
+    gt = GroundTruth(a.vertices, a.faces, box)
+    same = score_mesh(a.vertices, a.faces, gt)
+    assert same["chamfer_l2"] < 1e-7 and same["fscore"] == pytest.approx(1.0)
+    # a perfect surface lies inside the GT occupancy (solid + band) but covers only its shell:
+    # precision 1, and IoU = recall = shell voxels / GT voxels
+    assert same["precision"] == 1.0 and same["iou"] == pytest.approx(same["recall"])
+    shell = gt.grid.from_points(sample_surface(a.vertices, a.faces, 200000, seed=9))
+    assert same["recall"] == pytest.approx(shell.sum() / gt.occupancy.sum(), abs=0.01)
+    shift = np.array([0.003, 0, 0])
+    b = a.copy()
+    b.apply_translation(shift)
+    pb = sample_surface(b.vertices, b.faces, 20000, seed=5)
+    s = score_points(pb, gt)
+    # exact point-to-surface distances of a 4 cm box (analytic) bound the sampled Chamfer from
+    # below; the GT sample spacing (~0.7 mm) bounds the excess from above
+    centre = np.array([0.0012, 0.0007, 0.0503])
+
+    def box_dist(p, c):
+        q = np.abs(p - c) - 0.02
+        return np.where(np.all(q <= 0, 1), -q.max(1), np.linalg.norm(np.maximum(q, 0), axis=1))
+
+    d_ba, d_ab = box_dist(pb, centre), box_dist(gt.samples, centre + shift)
+    exact_l1 = 0.5 * (d_ba.mean() + d_ab.mean())
+    assert 0.0008 < exact_l1 < 0.0012  # mostly the ±x faces (1/3 of the area) at 3 mm
+    assert exact_l1 <= s["chamfer_l1"] <= exact_l1 + 4e-4
+    exact_l2 = np.mean(d_ba**2) + np.mean(d_ab**2)
+    assert exact_l2 <= s["chamfer_l2"] <= exact_l2 + 2 * 2 * 0.003 * 4e-4 + 2 * 4e-4**2
+    far = b.copy()
+    far.apply_translation([0.02, 0, 0])
+    s2 = score_points(sample_surface(far.vertices, far.faces, 20000, seed=5), gt)
+    assert s2["chamfer_l2"] > s["chamfer_l2"] and s2["fscore"] < s["fscore"]
+
+
+def test_signal_errors():
+    t = np.array([[1 + 1j, 0, 2j]])
+    p = np.array([[1 + 0j, 1, 2j]])
+    e = signal_errors(p, t)
+    assert e["l1_real"] == pytest.approx(1 / 3)
+    assert e["l1_imag"] == pytest.approx(1 / 3)
+    assert e["mse_abs"] == pytest.approx(((1 - math.sqrt(2)) ** 2 + 1) / 3)
+    with pytest.raises(ShsasError):
+        signal_errors(p[:, :2], t)

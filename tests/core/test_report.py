@@ -1,0 +1,60 @@
+import base64
+import io
+import re
+
+import numpy as np
+import trimesh
+from PIL import Image
+
+from shsas_core.report import (
+    MethodReport,
+    Report,
+    ReportFigures,
+    SignalFit,
+    load_report,
+    write_report,
+)
+from shsas_core.spec import ReconstructionSpec
+from shsas_core.volume import Grid, Volume
+
+
+def test_report_json_and_html_with_decodable_images(tmp_path):
+    g = Grid((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (12, 12, 12))
+    r = np.linalg.norm(g.points() - [0, 0, 0.1], axis=1).reshape(g.shape)
+    vol = Volume(g, np.exp(-((r / 0.05) ** 2)).astype(np.float32))
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.05)
+    sphere.apply_translation([0, 0, 0.1])
+    rep = Report(
+        spec=ReconstructionSpec(methods=["backprojection", "shsas"]),
+        survey={"platform": "test", "pings": 8},
+        ground_truth=True,
+        timings={"deconvolution": 0.5},
+        methods=[
+            MethodReport(method="backprojection", threshold=0.3, points=10, faces=20, seconds=1.0,
+                         metrics={"pc_chamfer_l2": 1e-4, "pc_iou": 0.5, "mesh_f1": None},
+                         artifacts={"mesh": "backprojection_mesh.ply"}),
+            MethodReport(method="shsas", sh_degree=3, threshold=0.4, points=12, faces=30, seconds=2.0,
+                         metrics={"pc_chamfer_l2": 5e-5}, loss_curve=[(0, 1.0), (10, 0.3)],
+                         signal_errors={"l1_real": 0.1}),
+        ],
+        artifacts=["report.json"],
+    )
+    t = np.linspace(0, 1e-3, 50)[None].repeat(2, 0)
+    fits = {"shsas": SignalFit(t * 1e3, np.ones((2, 50)) * 1j, np.ones((2, 50)), [0, 3])}
+    figs = ReportFigures(volumes={"backprojection": vol, "shsas": vol},
+                         meshes={"backprojection": sphere, "shsas": sphere}, gt_mesh=sphere, signal_fits=fits)
+    jp, hp = write_report(rep, figs, tmp_path)
+    back = load_report(jp)
+    assert back == rep
+    assert back.metrics()["backprojection"]["pc_iou"] == 0.5
+    assert np.isnan(back.metrics()["backprojection"]["mesh_f1"])
+    page = open(hp, encoding="utf-8").read()
+    imgs = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
+    assert len(imgs) == 4  # MIP, meshes, loss, signals
+    for b64 in imgs:
+        im = Image.open(io.BytesIO(base64.b64decode(b64)))
+        im.load()
+        assert im.size[0] > 200 and im.size[1] > 100
+    assert "Chamfer-L2" in page and "1.000e-04" in page
+    # links to artifacts are relative names in the same folder
+    assert "href='backprojection_mesh.ply'" in page

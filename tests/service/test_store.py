@@ -1,0 +1,126 @@
+"""The job store against real SQLite and PostgreSQL: leases, idempotency, paging, keys."""
+
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+
+import pytest
+
+from worker.store import IdempotencyConflict, JobStore
+
+
+@pytest.fixture(params=["sqlite", "postgres"])
+def store(request, tmp_path) -> JobStore:
+    if request.param == "sqlite":
+        s = JobStore(f"sqlite:///{tmp_path / 'jobs.db'}")
+    else:
+        pg = request.getfixturevalue("pg_url")
+        url, schema = pg.split("#")
+        s = JobStore(url, f"{schema}_{uuid.uuid4().hex[:6]}")
+    yield s
+    s.dispose()
+
+
+def new_job(store: JobStore, owner: str = "alice", **kw):
+    args = dict(owner=owner, spec={"methods": ["backprojection"]}, input_digest="d" * 64,
+                input_name="survey.h5", input_bytes=10, queue="cpu")
+    args.update(kw)
+    return store.create_job(**args)
+
+
+def test_claim_is_exclusive_under_concurrency(store: JobStore) -> None:
+    job, _ = new_job(store)
+    winners: list[str] = []
+
+    def claim(name: str) -> None:
+        if store.claim(job.id, name) is not None:
+            winners.append(name)
+
+    threads = [threading.Thread(target=claim, args=(f"w{i}",)) for i in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(winners) == 1
+    got = store.get(job.id)
+    assert got.status == "running" and got.attempts == 1 and got.lease_owner == winners[0]
+    # Only the lease owner can report progress or finish.
+    assert store.heartbeat(job.id, "intruder") == (False, False)
+    assert not store.finish(job.id, "intruder", "succeeded")
+    assert store.heartbeat(job.id, winners[0], progress=0.5, stage="fit") == (True, False)
+    assert store.finish(job.id, winners[0], "succeeded", artifacts=["a.ply"], metrics={"m": {"x": 1.0}})
+    done = store.get(job.id)
+    assert done.status == "succeeded" and done.progress == 1.0 and done.artifacts == ["a.ply"]
+    assert done.metrics == {"m": {"x": 1.0}} and done.lease_owner is None
+
+
+def test_idempotency_same_body_same_job_different_body_conflict(store: JobStore) -> None:
+    a, created_a = new_job(store, idempotency_key="k1", request_digest="r1")
+    b, created_b = new_job(store, idempotency_key="k1", request_digest="r1")
+    assert created_a and not created_b and a.id == b.id
+    with pytest.raises(IdempotencyConflict):
+        new_job(store, idempotency_key="k1", request_digest="r2")
+    # Keys are per owner: another owner may reuse the same key string.
+    c, created_c = new_job(store, owner="bob", idempotency_key="k1", request_digest="r2")
+    assert created_c and c.id != a.id
+
+
+def test_list_newest_first_with_cursor_and_status_filter(store: JobStore) -> None:
+    ids = []
+    for _ in range(7):
+        ids.append(new_job(store)[0].id)
+        time.sleep(0.002)
+    new_job(store, owner="bob")
+    seen, cursor = [], None
+    while True:
+        page, cursor = store.list_jobs("alice", cursor=cursor, limit=3)
+        seen += [j.id for j in page]
+        if cursor is None:
+            break
+    assert seen == ids[::-1]
+    store.request_cancel(ids[0], "alice")
+    cancelled, _ = store.list_jobs("alice", status="cancelled")
+    assert [j.id for j in cancelled] == [ids[0]]
+    assert store.request_cancel(ids[1], "bob") is None  # not bob's job
+    assert store.get(ids[1]).status == "queued"
+
+
+def test_reconciler_requeues_stale_then_fails_after_max_attempts(store: JobStore) -> None:
+    job, _ = new_job(store)
+    store.claim(job.id, "w1")
+    assert store.requeue_stale(lease_timeout_s=60, max_attempts=2) == ([], [])  # fresh lease
+    time.sleep(0.3)
+    requeued, failed = store.requeue_stale(lease_timeout_s=0.2, max_attempts=2)
+    assert [j.id for j in requeued] == [job.id] and failed == []
+    assert store.get(job.id).status == "queued"
+    assert store.claim(job.id, "w2").attempts == 2
+    time.sleep(0.3)
+    requeued, failed = store.requeue_stale(lease_timeout_s=0.2, max_attempts=2)
+    assert requeued == [] and [j.id for j in failed] == [job.id]
+    got = store.get(job.id)
+    assert got.status == "failed" and "lost 2 times" in got.error
+
+
+def test_claim_next_takes_oldest_queued(store: JobStore) -> None:
+    first, _ = new_job(store)
+    time.sleep(0.002)
+    second, _ = new_job(store)
+    assert store.claim_next("w").id == first.id
+    assert store.claim_next("w").id == second.id
+    assert store.claim_next("w") is None
+
+
+def test_api_keys_hashed_verify_revoke(store: JobStore) -> None:
+    assert not store.has_active_keys()
+    rec, token = store.create_key("alice")
+    assert store.has_active_keys()
+    assert store.verify_key(token) == rec.id
+    assert store.verify_key(token[:-2] + "xx") is None
+    assert store.verify_key("shsas_nope_secret") is None
+    with store.engine.connect() as conn:
+        stored = conn.exec_driver_sql("SELECT secret_hash FROM shsas_api_keys").scalar()
+    assert token.split("_", 2)[2] not in stored  # only the hash is at rest
+    assert store.revoke_key(rec.id) and not store.revoke_key(rec.id)
+    assert store.verify_key(token) is None and not store.has_active_keys()

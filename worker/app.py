@@ -1,0 +1,9 @@
+"""``celery -A worker.app worker``: the Celery app built from the environment (``SHSAS_*``)."""
+
+from __future__ import annotations
+
+from .celery_app import make_celery
+from .settings import get_settings
+
+app = make_celery(get_settings())
+celery = app  # the name `celery -A worker.app` also looks for

@@ -1,0 +1,48 @@
+"""Hand a queued job to whoever runs it: a Celery message, or nothing in embedded mode
+(the local worker polls the job table)."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from .settings import Settings
+from .store import Job
+
+
+@lru_cache(maxsize=4)
+def _celery(settings_json: str):
+    from .celery_app import make_celery
+    from .settings import Settings
+
+    return make_celery(Settings.model_validate_json(settings_json))
+
+
+def dispatch(settings: Settings, job: Job) -> None:
+    """Send ``job`` to its queue. Raises on broker errors (the caller decides what to tell)."""
+    if settings.embedded:
+        return
+    from .celery_app import TASK_NAME
+
+    app = _celery(settings.model_dump_json())
+    app.send_task(TASK_NAME, args=[job.id], queue=job.queue, retry=True,
+                  retry_policy={"max_retries": 3, "interval_start": 0.2, "interval_step": 0.5})
+
+
+def broker_ping(settings: Settings, timeout_s: float = 2.0) -> None:
+    """Raise if the broker cannot be reached (embedded mode has none and always passes)."""
+    if settings.embedded:
+        return
+    url = settings.broker_url or ""
+    if url.startswith(("redis://", "rediss://", "unix://")):
+        import redis
+
+        client = redis.Redis.from_url(url, socket_timeout=timeout_s, socket_connect_timeout=timeout_s)
+        try:
+            client.ping()
+        finally:
+            client.close()
+        return
+    from kombu import Connection
+
+    with Connection(url, connect_timeout=timeout_s) as conn:
+        conn.ensure_connection(max_retries=1)

@@ -1,0 +1,61 @@
+"""Re-queue jobs whose lease went stale (their worker died or hung), design §6.
+
+Safe to run in several processes at once: each transition is a conditional UPDATE, and a
+job is dispatched again only by the reconciler whose UPDATE won.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import threading
+
+from .dispatch import dispatch
+from .settings import Settings
+from .store import JobStore
+
+log = logging.getLogger("shsas.reconciler")
+
+
+def reconcile_once(store: JobStore, settings: Settings) -> tuple[int, int]:
+    """One pass. Returns (requeued, failed) counts."""
+    requeued, failed = store.requeue_stale(settings.lease_timeout_s, settings.max_attempts)
+    for job in requeued:
+        log.warning("job %s: lease of %s went stale; re-queued (attempt %d done)", job.id, job.lease_owner,
+                    job.attempts)
+        try:
+            dispatch(settings, job)
+        except Exception:
+            log.exception("could not re-send job %s; it stays queued", job.id)
+    for job in failed:
+        if job.cancel_requested:
+            # Cancelled while its worker was gone: drop what that worker left half-done.
+            shutil.rmtree(settings.jobs_dir() / job.id / "out", ignore_errors=True)
+            log.warning("job %s cancelled after its worker was lost", job.id)
+        else:
+            log.error("job %s failed after %d lost attempts", job.id, job.attempts)
+    return len(requeued), len(failed)
+
+
+class Reconciler:
+    """A daemon thread calling :func:`reconcile_once` every ``reconcile_interval_s``."""
+
+    def __init__(self, store: JobStore, settings: Settings):
+        self.store, self.settings = store, settings
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name="shsas-reconciler", daemon=True)
+
+    def start(self) -> Reconciler:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.settings.reconcile_interval_s):
+            try:
+                reconcile_once(self.store, self.settings)
+            except Exception:  # the database may be briefly away; try again next tick
+                log.exception("reconciler pass failed")

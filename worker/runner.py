@@ -1,0 +1,195 @@
+"""Run one job: claim its lease, call ``shsas_core.pipeline.run``, keep the job row current.
+
+Shared by the Celery task and the embedded local worker. The job row is the source of truth:
+the runner only acts while it holds the lease, writes progress and heartbeats to the row,
+reads ``cancel_requested`` from it, and finishes the job with one conditional UPDATE.
+
+A re-delivered job runs again in the same ``out_dir``; the pipeline's checkpoints make that a
+resume, and files it left half-written (``*.tmp``) are removed first.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import shutil
+import socket
+import threading
+import time
+import traceback
+import uuid
+from collections.abc import Mapping
+from pathlib import Path
+
+from .settings import Settings
+from .store import Job, JobStore
+
+log = logging.getLogger("shsas.worker")
+
+#: How often should_stop() reads the cancel flag at most; pipelines call it between steps.
+CANCEL_POLL_S = 0.1
+#: How often progress is written at most (stage changes are always written).
+PROGRESS_WRITE_S = 0.5
+
+
+def worker_id() -> str:
+    """A unique lease-owner name for this process: host, pid and a random suffix."""
+    return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
+
+
+def job_paths(settings: Settings, job_id: str) -> tuple[Path, Path]:
+    """(input dir, output dir) of a job; both server-made from the job id."""
+    base = settings.jobs_dir() / job_id
+    return base / "input", base / "out"
+
+
+class JobControl:
+    """The ``progress`` / ``should_stop`` pair handed to the pipeline, plus a heartbeat thread.
+
+    ``should_stop()`` turns True when the API asked to cancel, when this worker lost the lease
+    (another worker took the job over) or past the soft time limit. Past the hard limit the
+    heartbeat thread fails the job and ends the process, since the pipeline is not listening.
+    """
+
+    def __init__(self, store: JobStore, settings: Settings, job: Job, owner: str):
+        self.store, self.settings, self.job_id, self.owner = store, settings, job.id, owner
+        self.cancel = False
+        self.lost_lease = False
+        self.timed_out = False
+        self._t0 = time.monotonic()
+        self._last_poll = 0.0
+        self._last_write = 0.0
+        self._stage: str | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._beat, name=f"heartbeat-{job.id}", daemon=True)
+
+    def start(self) -> JobControl:
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=10)
+
+    def _apply(self, still_owner: bool, cancel: bool) -> None:
+        if not still_owner:
+            self.lost_lease = True
+        if cancel:
+            self.cancel = True
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self.settings.heartbeat_interval_s):
+            self._write()  # the lease tolerates a few missed beats
+            if time.monotonic() - self._t0 > self.settings.job_hard_time_limit_s:
+                log.error("job %s passed the hard time limit; ending the worker process", self.job_id)
+                self.store.finish(self.job_id, self.owner, "failed", error=self._limit_message("hard"))
+                os._exit(70)
+
+    def _limit_message(self, kind: str) -> str:
+        limit = self.settings.job_soft_time_limit_s if kind == "soft" else self.settings.job_hard_time_limit_s
+        return f"the job ran past the {kind} time limit of {limit:g} s (SHSAS_JOB_{kind.upper()}_TIME_LIMIT_S)"
+
+    def progress(self, fraction: float, stage: str, metrics: Mapping[str, float]) -> None:
+        now = time.monotonic()
+        if stage == self._stage and now - self._last_write < PROGRESS_WRITE_S and fraction < 1.0:
+            return
+        self._stage, self._last_write = stage, now
+        live = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float)}
+        self._write(progress=fraction, stage=stage, live_metrics=live)
+
+    def _write(self, **values) -> None:
+        try:
+            with self._lock:
+                self._apply(*self.store.heartbeat(self.job_id, self.owner, **values))
+        except Exception:  # a DB blip must not fail the job; the next call tries again
+            log.warning("job %s: could not write progress/heartbeat", self.job_id, exc_info=True)
+
+    def should_stop(self) -> bool:
+        now = time.monotonic()
+        if now - self._t0 > self.settings.job_soft_time_limit_s:
+            self.timed_out = True
+        if now - self._last_poll >= CANCEL_POLL_S:
+            self._last_poll = now
+            self._write()
+        return self.cancel or self.lost_lease or self.timed_out
+
+
+#: Names of half-written files: ``x.tmp``, ``.x.<pid>.tmp`` (export) and ``x.tmp<pid>`` (train).
+PARTIAL = re.compile(r"\.tmp\d*$")
+
+
+def remove_partials(out_dir: Path) -> None:
+    """Delete half-written files a killed run left behind (see :data:`PARTIAL`); keep the rest."""
+    if not out_dir.is_dir():
+        return
+    for p in out_dir.rglob("*.tmp*"):
+        if p.is_file() and PARTIAL.search(p.name):
+            p.unlink(missing_ok=True)
+
+
+def _checked_artifacts(out_dir: Path, names: list[str]) -> list[str]:
+    """Artifact names as the API will serve them: plain file names that exist, no repeats."""
+    seen: list[str] = []
+    for name in names:
+        if Path(name).name != name or name.startswith(".") or PARTIAL.search(name):
+            raise RuntimeError(f"pipeline returned an artifact name that is not a plain file name: {name!r}")
+        if not (out_dir / name).is_file():
+            raise RuntimeError(f"pipeline listed artifact {name!r} but did not write it")
+        if name not in seen:
+            seen.append(name)
+    return seen
+
+
+def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | None = None,
+                *, claimed: Job | None = None) -> str:
+    """Claim and run ``job_id``. Returns the final status, or ``"skipped"`` when the job was not
+    queued (already running elsewhere, finished or cancelled), or ``"lost"`` when another
+    worker took the lease over mid-run."""
+    owner = owner or worker_id()
+    job = claimed or store.claim(job_id, owner)
+    if job is None:
+        log.info("job %s is not queued any more; nothing to do", job_id)
+        return "skipped"
+    in_dir, out_dir = job_paths(settings, job.id)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    remove_partials(out_dir)
+    log.info("job %s attempt %d on %s", job.id, job.attempts, owner)
+    ctl = JobControl(store, settings, job, owner).start()
+    try:
+        from shsas_core.errors import Cancelled, ShsasError
+        from shsas_core.pipeline import run
+        from shsas_core.spec import ReconstructionSpec
+
+        spec = ReconstructionSpec.model_validate(job.spec)
+        try:
+            result = run(spec, in_dir / job.input_name, out_dir, ctl.progress, ctl.should_stop)
+        except Cancelled:
+            if ctl.lost_lease:
+                return "lost"  # the new owner works in this out_dir; leave it alone
+            if ctl.timed_out and not ctl.cancel:
+                store.finish(job.id, owner, "failed", error=ctl._limit_message("soft"))
+                return "failed"
+            # No half-written artifacts kept: a cancelled job's outputs go entirely.
+            shutil.rmtree(out_dir, ignore_errors=True)
+            store.finish(job.id, owner, "cancelled", artifacts=[])
+            return "cancelled"
+        except ShsasError as exc:
+            store.finish(job.id, owner, "failed", error=str(exc)[:2000])
+            return "failed"
+        except MemoryError:
+            store.finish(job.id, owner, "failed", error="the job ran out of memory (try a smaller grid or fewer rays)")
+            return "failed"
+        artifacts = _checked_artifacts(out_dir, list(result.artifacts))
+        metrics = {m: {k: float(v) for k, v in d.items() if isinstance(v, int | float)}
+                   for m, d in result.metrics.items()}
+        ok = store.finish(job.id, owner, "succeeded", artifacts=artifacts, metrics=metrics)
+        return "succeeded" if ok else "lost"
+    except Exception as exc:  # report, never crash the worker on one bad job
+        log.error("job %s failed:\n%s", job.id, traceback.format_exc())
+        name = "soft time limit" if type(exc).__name__ == "SoftTimeLimitExceeded" else type(exc).__name__
+        store.finish(job.id, owner, "failed", error=f"internal error ({name}): {str(exc)[:500]}")
+        return "failed"
+    finally:
+        ctl.close()

@@ -1,0 +1,90 @@
+"""Service configuration from the environment (``SHSAS_*``), via pydantic-settings.
+
+One :class:`Settings` object (here, because `service` -> `worker` -> `shsas_core`) is shared by the API, the Celery worker, the embedded local
+worker and the ``shsas`` commands that start them, so a deployment is configured in one place.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+GiB = 1024**3
+
+
+class Settings(BaseSettings):
+    """Everything the service reads from the environment. Every field is ``SHSAS_<NAME>``."""
+
+    model_config = SettingsConfigDict(env_prefix="SHSAS_", extra="ignore")
+
+    data_dir: Path = Field(Path("shsas_data"), description="uploads, job outputs and the default SQLite job store")
+    database_url: str | None = Field(
+        None, description="SQLAlchemy URL of the job store; unset = sqlite file <data_dir>/shsas.db. "
+        "PostgreSQL: postgresql+psycopg://user@host/db")
+    database_schema: str | None = Field(None, description="PostgreSQL schema for the tables (default: search_path)")
+    broker_url: str | None = Field(
+        None, description="Celery broker (redis://host:6379/0); unset = embedded local worker, no Redis")
+    gpu_queue: str = Field("gpu", description="Celery queue for jobs with device auto/cuda")
+    cpu_queue: str = Field("cpu", description="Celery queue for jobs with device cpu")
+    auto_device_queue: str = Field("gpu", pattern=r"^(gpu|cpu)$",
+                                   description="which queue takes jobs whose spec says device=auto")
+    max_upload_bytes: int = Field(4 * GiB, ge=1, description="survey upload cap; larger uploads get 413")
+    validate_memory_bytes: int = Field(4 * GiB, ge=512 * 1024**2,
+                                       description="address-space limit of the survey validation process")
+    validate_timeout_s: float = Field(300.0, gt=0, description="time limit of the survey validation process")
+    job_soft_time_limit_s: float = Field(6 * 3600.0, gt=0, description="a job past this is stopped and failed")
+    job_hard_time_limit_s: float = Field(6 * 3600.0 + 300, gt=0, description="the worker child is killed past this")
+    heartbeat_interval_s: float = Field(5.0, gt=0, description="how often a running job refreshes its lease")
+    lease_timeout_s: float = Field(60.0, gt=0, description="a running job whose heartbeat is older is re-queued")
+    reconcile_interval_s: float = Field(10.0, gt=0, description="how often stale leases are looked for")
+    max_attempts: int = Field(3, ge=1, description="deliveries before a repeatedly lost job is failed")
+    local_poll_interval_s: float = Field(0.5, gt=0, description="embedded worker: how often it looks for queued jobs")
+    page_size_max: int = Field(100, ge=1, le=1000)
+
+    @model_validator(mode="after")
+    def _limits(self) -> Settings:
+        if self.job_hard_time_limit_s <= self.job_soft_time_limit_s:
+            raise ValueError("SHSAS_JOB_HARD_TIME_LIMIT_S must exceed SHSAS_JOB_SOFT_TIME_LIMIT_S")
+        if self.lease_timeout_s <= 2 * self.heartbeat_interval_s:
+            raise ValueError("SHSAS_LEASE_TIMEOUT_S must exceed twice SHSAS_HEARTBEAT_INTERVAL_S")
+        return self
+
+    @cached_property
+    def db_url(self) -> str:
+        """The effective job-store URL (the SQLite default lives in the data dir)."""
+        if self.database_url:
+            url = self.database_url
+            # Users write postgresql://; SQLAlchemy would pick psycopg2, which we do not ship.
+            if url.startswith("postgresql://") or url.startswith("postgres://"):
+                url = "postgresql+psycopg://" + url.split("://", 1)[1]
+            return url
+        return f"sqlite:///{(self.data_dir / 'shsas.db').resolve()}"
+
+    @property
+    def embedded(self) -> bool:
+        """True when no broker is configured: the job table itself is the queue."""
+        return not self.broker_url
+
+    @property
+    def visibility_timeout_s(self) -> int:
+        """Redis redelivers an unacknowledged task after this; it must outlast the longest job."""
+        return int(self.job_hard_time_limit_s + 600)
+
+    def jobs_dir(self) -> Path:
+        return self.data_dir / "jobs"
+
+    def queue_for(self, device: str) -> str:
+        """The Celery queue for a spec's device string."""
+        if device == "cpu":
+            return self.cpu_queue
+        if device.startswith("cuda"):
+            return self.gpu_queue
+        return self.gpu_queue if self.auto_device_queue == "gpu" else self.cpu_queue
+
+
+def get_settings() -> Settings:
+    """Read the settings from the environment now (not cached: tests and CLIs change env)."""
+    return Settings()
