@@ -154,7 +154,7 @@ def main() -> None:
           f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations)"
           + (" RENDERER ONLY (analytic field)" if args.renderer_only else ""))
     print(f"{'case':<7}{'bins x rays':>14}{'points':>10}{'fast ms':>10}{'eager ms':>10}{'speed-up':>10}"
-          f"{'fast MiB':>10}{'eager MiB':>11}")
+          f"{'fast MiB':>10}{'eager MiB':>11}{'fast min':>10}{'eager min':>11}")
     for case in args.cases.split(","):
         res = {}
         for mode in args.modes.split(","):
@@ -176,7 +176,7 @@ def main() -> None:
         pts = (f or e or {"points": b * r})["points"]
         print(f"{case:<7}{f'{b} x {r}':>14}{pts:>10}{col(f, 'ms_median', '.0f'):>10}"
               f"{col(e, 'ms_median', '.0f'):>10}{ratio:>10}{col(f, 'peak_mib', '.0f'):>10}"
-              f"{col(e, 'peak_mib', '.0f'):>11}")
+              f"{col(e, 'peak_mib', '.0f'):>11}{col(f, 'ms_min', '.0f'):>10}{col(e, 'ms_min', '.0f'):>11}")
 
 
 if __name__ == "__main__":
