@@ -7,6 +7,7 @@ Long routines take ``progress(fraction, stage, metrics)`` and ``should_stop()`` 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping
 
 from .errors import Cancelled
@@ -46,6 +47,7 @@ class TqdmProgress:
         self._bar = None
         self._stage: str | None = None
         self._disable = disable
+        self._last = 0.0
 
     def __call__(self, fraction: float, stage: str, metrics: Mapping[str, float]) -> None:
         from tqdm.auto import tqdm
@@ -57,6 +59,12 @@ class TqdmProgress:
                              bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining} {postfix}")
         assert self._bar is not None
         self._bar.n = round(1000 * min(max(fraction, 0.0), 1.0))
+        # Redraw at most ~5 times a second: training calls this every iteration, and in a log
+        # file (no terminal) each redraw is another line of text.
+        now = time.monotonic()
+        if now - self._last < 0.2 and fraction < 1.0:
+            return
+        self._last = now
         if metrics:
             self._bar.set_postfix({k: f"{v:.4g}" for k, v in metrics.items()}, refresh=False)
         self._bar.refresh()
