@@ -22,7 +22,7 @@ import numpy as np
 
 def find_bunny() -> Path:
     here = Path(__file__).resolve().parents[1]
-    for c in (here.parent / "shared", here / "shared", Path("/work/shared")):
+    for c in (here.parent / "shared", here / "shared", Path(os.environ.get("SHSAS_SHARED", "shared"))):
         p = c / "data" / "meshes" / "bunny.obj"
         if p.exists():
             return p

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import platform
 import sys
 import time
@@ -40,7 +41,7 @@ LABEL = {"backprojection": "Backprojection", "reed": "Reed et al. (L=0)", "shsas
 
 
 def shared_mesh(name: str) -> str | None:
-    for base in (ROOT.parent / "shared", ROOT / "shared", Path("/work/shared")):
+    for base in (ROOT.parent / "shared", ROOT / "shared", Path(os.environ.get("SHSAS_SHARED", "shared"))):
         p = base / "data" / "meshes" / f"{name}.obj"
         if p.exists():
             return str(p)
