@@ -17,6 +17,14 @@ per ping (∝ |s_PD| plus a uniform share), renders them with ``num_rays`` TX ra
   ``TV(∠σ) = mean |e^{i∠σ(x)} - e^{i∠σ(x+δ)}|`` (chord distance on the unit circle: ≈ |Δφ|
   for small differences, no 2π wrap, bounded gradient).
 
+Data term (``TrainConfig.target``): ``"coherent"`` (default, the paper) fits the complex s_PD;
+``"envelope"`` replaces every target ``s_k`` by ``|s_k|`` (real, non-negative) before anything
+else, so ``E`` and the bin sampler see ``|s|`` too. Envelope is a deviation from the paper for
+CPU budgets: the paper's renderer assumes ideal pulse deconvolution, while Wiener s_PD keeps the
+band-pass pulse PSF (carrier under an envelope), which a coherent fit can only explain with a
+complex σ oscillating along range (long GPU runs); |s_PD| has no carrier, so a density shell on
+the surface explains it within a few hundred iterations (docs/neural.md).
+
 ``A = exp(log_amplitude)`` is one learnable real scale, initialised in closed form before the
 first step as ``‖s‖ / ‖ŝ‖`` on a seeded batch, so the field does not have to grow its output by
 orders of magnitude to meet the data's units. Default weights follow the paper's simulated
