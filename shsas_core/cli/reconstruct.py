@@ -33,7 +33,8 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
                    help="hash-encoding preset: cpu (default), small (fastest, short CPU runs), paper_gpu")
     g.add_argument("--target", choices=["coherent", "envelope"], default=None,
                    help="data term of the neural methods: coherent = complex s_PD as in the paper "
-                   "(default), envelope = |s_PD| (converges at CPU budgets, see docs/neural.md)")
+                   "(reconstruct's default), envelope = |s_PD| (converges at CPU budgets; the "
+                   "demo's default; see docs/neural.md)")
     g.add_argument("--holdout", type=float, default=None, metavar="FRACTION",
                    help="share of pings held out for novel-view signal errors (default 0)")
 
