@@ -34,6 +34,9 @@ class ReconstructionSpec(BaseModel):
     pings_per_batch: int = Field(1, ge=1, le=64)
     holdout_fraction: float = Field(0.0, ge=0, lt=0.9, description="pings held out for novel-view errors")
     lr: float = Field(1e-3, gt=0, le=1.0, description="Adam learning rate of the neural methods")
+    target: Literal["coherent", "envelope"] = Field(
+        "coherent", description="data term of the neural methods: coherent fits complex s_PD (the "
+        "paper); envelope fits |s_PD|, which converges at CPU budgets (docs/neural.md)")
     encoding: Literal["cpu", "small", "paper_gpu"] = Field(
         "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
         "small (8 levels, 2^13 rows, finest 128: fastest, for short CPU runs), paper_gpu (the paper's)")

@@ -31,6 +31,10 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--lr", type=float, default=None, help="Adam learning rate of the neural methods (default 1e-3)")
     g.add_argument("--encoding", choices=["cpu", "small", "paper_gpu"], default=None,
                    help="hash-encoding preset: cpu (default), small (fastest, short CPU runs), paper_gpu")
+    g.add_argument("--target", choices=["coherent", "envelope"], default=None,
+                   help="data term of the neural methods: coherent = complex s_PD as in the paper "
+                   "(reconstruct's default), envelope = |s_PD| (converges at CPU budgets; the "
+                   "demo's default; see docs/neural.md)")
     g.add_argument("--holdout", type=float, default=None, metavar="FRACTION",
                    help="share of pings held out for novel-view signal errors (default 0)")
 
@@ -44,7 +48,8 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
     fields = {"methods": "methods", "sh_degree": "sh_degree", "iters": "iters", "grid": "grid",
               "device": "device", "threshold": "threshold", "deconv": "deconvolution", "seed": "seed",
               "bins": "num_bins", "rays": "num_rays", "pings_per_batch": "pings_per_batch",
-              "holdout": "holdout_fraction", "lr": "lr", "encoding": "encoding"}
+              "holdout": "holdout_fraction", "lr": "lr", "encoding": "encoding",
+              "target": "target"}
     kw: dict[str, object] = dict(defaults)
     for opt, field in fields.items():
         v = getattr(args, opt, None)

@@ -139,3 +139,11 @@ def test_spec_maps_onto_trainer_and_encoding():
     assert encoding_config("paper_gpu") == PAPER_GPU_ENCODING
     small = encoding_config("small")
     assert (small.n_levels, small.log2_table_size, small.finest_resolution) == (8, 13, 128)
+
+
+def test_spec_target_reaches_the_trainer():
+    from shsas_core.pipeline import train_config
+
+    assert ReconstructionSpec().target == "coherent"
+    assert train_config(ReconstructionSpec()).target == "coherent"
+    assert train_config(ReconstructionSpec(target="envelope")).target == "envelope"
