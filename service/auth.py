@@ -34,8 +34,10 @@ def is_loopback(host: str | None) -> bool:
         return host == "localhost"
 
 
-#: How long "are any keys active?" is remembered. A key's own validity (revocation) is
-#: checked on every request; only the keyless-loopback mode may outlive the first key by this.
+#: How long a "keys are active" answer is remembered. Only that answer is cached: it can only
+#: make the server stricter (a key is still required for a moment after the last one is revoked),
+#: while "no keys" is re-read on every request so keyless loopback access ends the moment the
+#: first key is created. A key's own validity (revocation) is checked on every request.
 KEYS_CACHE_S = 1.0
 _keys_cache: dict[int, tuple[float, bool]] = {}
 
@@ -46,7 +48,10 @@ def _has_active_keys(store: JobStore) -> bool:
     if hit is not None and now - hit[0] < KEYS_CACHE_S:
         return hit[1]
     value = store.has_active_keys()
-    _keys_cache[id(store)] = (now, value)
+    if value:
+        _keys_cache[id(store)] = (now, value)
+    else:
+        _keys_cache.pop(id(store), None)
     return value
 
 
