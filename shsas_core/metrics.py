@@ -227,6 +227,34 @@ def occupancy_scores(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     return {"iou": inter / union if union else 0.0, "precision": p, "recall": r, "f1": _f1(p, r)}
 
 
+def surface_concentration(volume: Any, vertices: np.ndarray, faces: np.ndarray, shell: float = 0.01) -> float:
+    """How much a volume concentrates on a surface: mean magnitude of the voxels within ``shell``
+    (m) of the mesh over the mean magnitude of the voxels outside the mesh farther than ``shell``.
+
+    1 means no concentration (e.g. a flat field), larger is better. The inside of the mesh is left
+    out: the front surface hides it, so the data say nothing about it. Inside/outside comes from
+    filling the holes of the ``shell`` band on the volume's own grid, so ``shell`` must be at
+    least the voxel diagonal (the band is then closed) and the mesh closed.
+
+    Args:
+        volume: a :class:`~shsas_core.volume.Volume` (e.g. ``extract.field_volume`` of a field).
+        vertices, faces: the true surface, (V, 3) m and (F, 3).
+        shell: half-width of the surface band, m.
+    """
+    from scipy.ndimage import binary_fill_holes
+
+    grid = volume.grid
+    if shell < float(np.linalg.norm(grid.spacing)):
+        raise ShsasError(f"surface_concentration: shell {shell} m is below the voxel diagonal "
+                         f"{float(np.linalg.norm(grid.spacing)):.4g} m (fix: a finer grid or a wider shell)")
+    near = within_distance_of_mesh(grid.points(), vertices, faces, shell).reshape(grid.shape)
+    outside = ~binary_fill_holes(near)
+    if not near.any() or not outside.any():
+        raise ShsasError("surface_concentration: the surface band or the outside is empty on this grid")
+    mag = volume.magnitude()
+    return float(mag[near].mean() / max(float(mag[outside].mean()), 1e-30))
+
+
 # --------------------------------------------------------------------------------------------
 # the protocol
 class GroundTruth:

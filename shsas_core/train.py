@@ -96,6 +96,9 @@ class TrainConfig(BaseModel):
 
     iters: int = Field(1500, ge=1, le=1_000_000)
     lr: float = Field(1e-3, gt=0, le=1.0)
+    lr_final: float | None = Field(
+        None, gt=0, le=1.0, description="learning rate at the last iteration, reached by exponential "
+        "decay from lr (None: constant lr, the paper's setting)")
     num_bins: int = Field(64, ge=1, le=65536)
     num_rays: int = Field(1024, ge=1, le=1_000_000)
     pings_per_batch: int = Field(1, ge=1, le=4096)
@@ -306,9 +309,10 @@ def _atomic_save(obj: Any, path: Path) -> None:
 
 
 def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:
-    """What must match for a checkpoint to be resumed (iters may grow)."""
+    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays over them)."""
     c = cfg.model_dump(mode="json")
-    c.pop("iters")
+    if cfg.lr_final is None:
+        c.pop("iters")
     c.pop("checkpoint_every")
     c.pop("device")
     fcfg = getattr(field, "cfg", None)
@@ -406,6 +410,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             check_stop(should_stop)
             if cfg.progressive_sh_every is not None:
                 _set_active_degree(field, it // cfg.progressive_sh_every)
+            if cfg.lr_final is not None:
+                for group in opt.param_groups:
+                    group["lr"] = _scheduled_lr(cfg, it)
             gen = _generator(cfg.seed, it)
             _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
             out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
@@ -442,6 +449,56 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                      iterations=it_done, start_iteration=start, amplitude=float(amp_mod().detach()),
                      signal_energy=data.energy, checkpoint_path=str(ckpt_path) if ckpt_path else None,
                      elapsed_s=time.perf_counter() - t_start)
+
+
+def evaluate_data_loss(field: torch.nn.Module, survey, signals: np.ndarray, ping_indices: Sequence[int],
+                       target: Literal["coherent", "envelope"] = "coherent", num_rays: int = 1024,
+                       amplitude: float | None = None, uniform_fraction: float = 0.1, seed: int = 0) -> float:
+    """Relative data residual of whole pings, a low-noise version of the training data term.
+
+    ``Σ p_nk |A ŝ_nk - s_nk|² / Σ p_nk |s_nk|²`` over every valid bin ``k`` of the given pings,
+    with ``p`` the trainer's bin-sampling weights (``(1-u)|s|/Σ|s| + u/n_valid`` per ping), ``ŝ``
+    rendered by :func:`~shsas_core.render.render_transients` with ``num_rays`` rays, and ``s``
+    the signals (``|s|`` for ``target="envelope"``). 0 is a perfect fit; predicting zeros scores 1.
+
+    Args:
+        field: trained (or freshly initialised) field. survey, signals: as for :func:`fit`.
+        ping_indices: which pings. target: as ``TrainConfig.target``. num_rays: rays per ping.
+        amplitude: the scale A (``FitResult.amplitude``); None: the least-squares best A >= 0 for
+            these pings, which makes the value independent of the field's overall scale (use it
+            to compare an untrained field with a trained one fairly).
+        uniform_fraction: ``u`` of the weights. seed: ray jitter seed.
+    """
+    from .render.renderer import RenderConfig, render_transients
+
+    pings = np.asarray(ping_indices, dtype=np.int64)
+    s = np.asarray(signals)[pings]
+    s = np.abs(s).astype(np.float64) if target == "envelope" else s.astype(np.complex128)
+    radii = bin_radii(survey.t0[pings], survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
+    box = survey.meta.scene_box
+    r_lo, r_hi = scene_range_window(survey.tx[pings], survey.rx[pings], box.min, box.max)
+    base = np.linalg.norm(survey.tx[pings] - survey.rx[pings], axis=1)
+    valid = (radii >= r_lo[:, None]) & (radii <= r_hi[:, None]) & (radii > base[:, None])
+    n_valid = np.maximum(valid.sum(axis=1, keepdims=True), 1)
+    w = np.where(valid, np.abs(s), 0.0)
+    tot = w.sum(axis=1, keepdims=True)
+    p = ((1 - uniform_fraction) * np.where(tot > 0, w / np.where(tot > 0, tot, 1), valid / n_valid)
+         + uniform_fraction * valid / n_valid)
+    den = float((p * np.abs(s) ** 2).sum())
+    if not den > 0:
+        raise ShsasError("evaluate_data_loss: the signals are all zero inside the scene's range window")
+    pred = render_transients(field, survey, pings, RenderConfig(num_rays=num_rays), seed=seed).astype(np.complex128)
+    if amplitude is None:
+        e_pred = float((p * np.abs(pred) ** 2).sum())
+        amplitude = max(float((p * (np.conj(pred) * s)).sum().real) / e_pred, 0.0) if e_pred > 0 else 0.0
+    return float((p * np.abs(amplitude * pred - s) ** 2).sum()) / den
+
+
+def _scheduled_lr(cfg: TrainConfig, it: int) -> float:
+    """lr · (lr_final / lr)^(it / (iters - 1)): a pure function of the iteration, so resume is exact."""
+    if cfg.lr_final is None or cfg.iters <= 1:
+        return cfg.lr
+    return cfg.lr * (cfg.lr_final / cfg.lr) ** (it / (cfg.iters - 1))
 
 
 def _init_amplitude(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, device, dtype) -> None:

@@ -17,6 +17,7 @@ from shsas_core.metrics import (
     score_mesh,
     score_points,
     signal_errors,
+    surface_concentration,
     within_distance_of_mesh,
 )
 from shsas_core.survey import SceneBox
@@ -166,3 +167,26 @@ def test_signal_errors():
     assert e["mse_abs"] == pytest.approx(((1 - math.sqrt(2)) ** 2 + 1) / 3)
     with pytest.raises(ShsasError):
         signal_errors(p[:, :2], t)
+
+
+def test_surface_concentration_matches_the_analytic_sphere_sets():
+    """A volume of 1 + 4 exp(-(d/shell)^2), d the distance to a 5 cm sphere: the ratio over the
+    mesh's band and outside equals the ratio over the exact analytic sets to 2 %."""
+    from shsas_core.volume import Grid, Volume
+
+    box = SceneBox(min=(-0.1, -0.1, -0.1), max=(0.1, 0.1, 0.1))
+    grid = Grid.over(box, 40)
+    pts = grid.points()
+    radius, shell = 0.05, 0.012
+    d = np.linalg.norm(pts, axis=1) - radius
+    vals = (1.0 + 4.0 * np.exp(-((d / shell) ** 2))).astype(np.float32)
+    vol = Volume(grid, vals.reshape(grid.shape))
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=radius)
+    got = surface_concentration(vol, sphere.vertices, sphere.faces, shell=shell)
+    ref = vals[np.abs(d) <= shell].mean() / vals[d > shell].mean()
+    assert got == pytest.approx(ref, rel=0.02)
+    assert got > 2.0
+    flat = Volume(grid, np.ones(grid.shape, np.float32))
+    assert surface_concentration(flat, sphere.vertices, sphere.faces, shell=shell) == pytest.approx(1.0)
+    with pytest.raises(ShsasError, match="voxel diagonal"):
+        surface_concentration(vol, sphere.vertices, sphere.faces, shell=0.001)
