@@ -405,6 +405,7 @@ def train_config(spec: ReconstructionSpec) -> Any:
     from .train import TrainConfig
 
     want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays, "lr": spec.lr,
+            "lr_final": spec.lr_final,
             "target": spec.target, "pings_per_batch": spec.pings_per_batch, "device": spec.device,
             # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
             "checkpoint_every": max(10, min(500, spec.iters // 10))}

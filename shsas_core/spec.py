@@ -34,6 +34,8 @@ class ReconstructionSpec(BaseModel):
     pings_per_batch: int = Field(1, ge=1, le=64)
     holdout_fraction: float = Field(0.0, ge=0, lt=0.9, description="pings held out for novel-view errors")
     lr: float = Field(1e-3, gt=0, le=1.0, description="Adam learning rate of the neural methods")
+    lr_final: float | None = Field(None, gt=0, le=1.0, description="learning rate at the last iteration "
+                                   "(exponential decay from lr); None: constant lr as in the paper")
     target: Literal["coherent", "envelope"] = Field(
         "coherent", description="data term of the neural methods: coherent fits complex s_PD (the "
         "paper); envelope fits |s_PD|, which converges at CPU budgets (docs/neural.md)")

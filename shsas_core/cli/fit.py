@@ -31,6 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rays", type=int, default=1024, help="TX rays per ping (paper: ~4800)")
     p.add_argument("--pings-per-batch", type=int, default=1, help="pings rendered per iteration")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
+    p.add_argument("--lr-final", type=float, default=None,
+                   help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
     p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
     p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints")
     p.add_argument("--encoding", choices=["cpu", "paper_gpu"], default=None,
@@ -89,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     preset = args.encoding or ("paper_gpu" if device.type == "cuda" else "cpu")
     try:
         fcfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), scene_box=survey.meta.scene_box)
-        tcfg = TrainConfig(iters=args.iters, lr=args.lr, num_bins=args.bins, num_rays=args.rays,
+        tcfg = TrainConfig(iters=args.iters, lr=args.lr, lr_final=args.lr_final, num_bins=args.bins, num_rays=args.rays,
                            pings_per_batch=args.pings_per_batch, seed=args.seed,
                            checkpoint_every=args.checkpoint_every, device=str(device),
                            render=RenderConfig(beamwidth_deg=args.beamwidth))

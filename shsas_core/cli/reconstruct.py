@@ -29,6 +29,8 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rays", type=int, default=None, help="rays per ping per iteration (default 1024)")
     g.add_argument("--pings-per-batch", type=int, default=None, help="pings per training iteration (default 1)")
     g.add_argument("--lr", type=float, default=None, help="Adam learning rate of the neural methods (default 1e-3)")
+    g.add_argument("--lr-final", type=float, default=None,
+                   help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
     g.add_argument("--encoding", choices=["cpu", "small", "paper_gpu"], default=None,
                    help="hash-encoding preset: cpu (default), small (fastest, short CPU runs), paper_gpu")
     g.add_argument("--target", choices=["coherent", "envelope"], default=None,
@@ -48,7 +50,7 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
     fields = {"methods": "methods", "sh_degree": "sh_degree", "iters": "iters", "grid": "grid",
               "device": "device", "threshold": "threshold", "deconv": "deconvolution", "seed": "seed",
               "bins": "num_bins", "rays": "num_rays", "pings_per_batch": "pings_per_batch",
-              "holdout": "holdout_fraction", "lr": "lr", "encoding": "encoding",
+              "holdout": "holdout_fraction", "lr": "lr", "lr_final": "lr_final", "encoding": "encoding",
               "target": "target"}
     kw: dict[str, object] = dict(defaults)
     for opt, field in fields.items():

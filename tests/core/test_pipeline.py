@@ -135,7 +135,8 @@ def test_spec_maps_onto_trainer_and_encoding():
     spec = ReconstructionSpec(iters=250, lr=0.02, num_bins=7, num_rays=9, pings_per_batch=3, seed=5)
     cfg = train_config(spec)
     assert (cfg.iters, cfg.lr, cfg.num_bins, cfg.num_rays, cfg.pings_per_batch, cfg.seed) == (250, 0.02, 7, 9, 3, 5)
-    assert cfg.checkpoint_every == 25
+    assert cfg.checkpoint_every == 25 and cfg.lr_final is None
+    assert train_config(ReconstructionSpec(lr=0.02, lr_final=1e-4)).lr_final == 1e-4
     assert encoding_config("paper_gpu") == PAPER_GPU_ENCODING
     small = encoding_config("small")
     assert (small.n_levels, small.log2_table_size, small.finest_resolution) == (8, 13, 128)
