@@ -4,7 +4,7 @@ One training-like step: ``out = field(x, dirs)`` (density, scattering, normals w
 ``create_graph=True``), a loss that uses all three, ``loss.backward()`` to the parameters.
 
 Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fast``
-(fused batched encoding + forward-mode normals, ``FieldConfig(fast=True)``), ``compiled``
+(fused batched encoding + analytic normals, ``FieldConfig(fast=True)``), ``compiled``
 (``fast`` plus ``FieldConfig(compile=True)``: encoding kernels through torch.compile).
 
 Timing: all modes live in one process and their steps are interleaved round by round, so a

@@ -1,6 +1,6 @@
 """Milliseconds per training iteration: fast path vs eager reference, side by side.
 
-fast  = FieldConfig.fast=True (batched hash encoding + forward-mode normals, one first-order
+fast  = FieldConfig.fast=True (batched hash encoding + analytic normals, one first-order
         backward) + RenderConfig.fast=True (focal closed-form intersection, cumsum transmittance)
 eager = FieldConfig.fast=False (per-level encoding, normals by double backward) +
         RenderConfig.fast=False (ellipsoid-frame quadric, cumprod transmittance)

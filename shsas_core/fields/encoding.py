@@ -22,7 +22,7 @@ Two implementations of the same maths:
   ``index_select`` with int32 rows, feature-major layout; its backward a matching ``index_add``),
   no Python loop over levels, nested lerps instead of 8 corner weights. Optionally also returns the analytic spatial
   Jacobian of the features (as tangents (3, P, D)) from the same gathered corner values; the
-  field uses it to get normals by forward-mode differentiation in the same pass.
+  field contracts it with d|c_00|/d features to get normals in the same pass.
 
 Both are built from differentiable torch ops only, so they are differentiable to any order with
 respect to the table and the input (double backward for create_graph normals works).
@@ -300,6 +300,8 @@ def _lerp_adjoint(
     # Each axis splits a gradient g into (1 - f) g + ... and f g + ...; the (1 - f) half is
     # computed as g - (f half), which halves the number of full-size products.
     fx, fy, fz = frac[0], frac[1], frac[2]
+    if g_jac is not None and not torch.is_grad_enabled():
+        return _lerp_adjoint_into(g_out, g_jac, fx, fy, fz, res)
 
     def split(total: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
         return torch.stack((total - upper, upper), 1)
@@ -316,6 +318,37 @@ def _lerp_adjoint(
     kx = split(gjz, gjz * fx)  # Wx g_jz
     cc = split(kx, fy * kx)  # Wy Wx g_jz
     return split(bb, torch.addcmul(fz * bb, cc, res.expand_as(cc)))  # Wz bb + S cc
+
+
+def _lerp_adjoint_into(g_out: torch.Tensor, g_jac: torch.Tensor, fx: torch.Tensor, fy: torch.Tensor,
+                      fz: torch.Tensor, res: torch.Tensor) -> torch.Tensor:
+    """:func:`_lerp_adjoint` with a Jacobian, writing every level of the tree into its slot of
+    one preallocated output instead of stacking halves (no graph: first-order backward only).
+
+    Each axis writes its upper half, ``f g + S h``, then turns the lower slot, which holds the
+    total ``g``, into ``g - upper``; the (F, 2, 2, 2, P, Lv) result is built without copies.
+    """
+    feat, p, nlev = g_out.shape
+    dv = g_out.new_empty((feat, 2, 2, 2, p, nlev))
+    gjx, gjy, gjz = g_jac[0], g_jac[1], g_jac[2]
+    low_z = dv[:, 0]  # holds bb = Wy ⊗ (Wx g_out + S g_x) + S ⊗ Wx g_y until the z split
+    gx = low_z[:, 0]  # holds Wx g_out + S g_x (F, 2x, P, Lv) until the y split
+    torch.mul(g_out, fx, out=gx[:, 1])
+    gx[:, 1].addcmul_(gjx, res)
+    torch.sub(g_out, gx[:, 1], out=gx[:, 0])
+    hy = torch.stack((gjy, gjy * fx), 1)  # Wx g_jy: lower half fixed below
+    hy[:, 0].sub_(hy[:, 1])
+    torch.mul(gx, fy[None], out=low_z[:, 1])
+    low_z[:, 1].addcmul_(hy, res)
+    gx.sub_(low_z[:, 1])
+    kx = torch.stack((gjz, gjz * fx), 1)
+    kx[:, 0].sub_(kx[:, 1])
+    cc = torch.stack((kx, kx * fy[None]), 1)  # Wy ⊗ Wx g_jz
+    cc[:, 0].sub_(cc[:, 1])
+    torch.mul(low_z, fz[None, None], out=dv[:, 1])
+    dv[:, 1].addcmul_(cc, res)
+    low_z.sub_(dv[:, 1])
+    return dv
 
 
 def _to_point_major(out: torch.Tensor, jac: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:

@@ -18,10 +18,11 @@ never read out of range).
 * ``fast=False`` (reference): Python-loop encoding; normals by ``torch.autograd.grad`` of
   ``|σ_DC|`` w.r.t. x (``create_graph=True`` when training, i.e. double backward).
 * ``fast=True``: batched encoding (one gather for all levels) that also returns the analytic
-  Jacobian d features / d u from the same corner values; the Jacobian is pushed through the MLP
-  as three forward-mode tangents (ReLU masks, 3 extra small matmuls per layer). The normal is then
-  an ordinary differentiable function of the parameters: training needs one first-order backward
-  instead of a double backward, and the encoding is evaluated once per forward.
+  Jacobian d features / d u from the same corner values; the Jacobian is contracted with
+  d|c_00| / d features from one reverse pass through the MLP (the forward's ReLU masks, one
+  extra small matmul per layer). The normal is then an ordinary differentiable function of the
+  parameters: training needs one first-order backward instead of a double backward, and the
+  encoding is evaluated once per forward.
 * ``fast=True, compile=True``: the fused encoding kernels through ``torch.compile`` (measured on
   a 2-core CPU: 20–60 s to compile, then no faster than the fused eager kernels; off by default).
 """
@@ -56,7 +57,7 @@ class FieldConfig(BaseModel):
     init_density: float = Field(
         1e-2, gt=0, description="density at initialisation (1/m), from the bias of Re c_00"
     )
-    fast: bool = Field(True, description="batched encoding + forward-mode normals (same maths)")
+    fast: bool = Field(True, description="batched encoding + analytic normals (same maths)")
     compile: bool = Field(
         False, description="with fast: torch.compile the encoding kernels (slow to compile, no gain on CPU)"
     )
@@ -148,24 +149,32 @@ class SHField(torch.nn.Module):
                 h = torch.relu(h)
         return h
 
-    def _mlp_with_tangents(self, h: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """MLP output (P, 2K) and the tangents of Re c_00, Im c_00: (3, P, 2).
+    def _mlp_with_dc_gradient(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """MLP output (P, 2K) and d|c_00| / d h (P, D), the gradient of the DC magnitude with
+        respect to the encoded features.
 
-        t: (3, P, D) = d h / d u_a for the three axes a (forward-mode through Linear + ReLU).
+        One reverse (vector-Jacobian) pass per point: |c_00| is a single output, so its gradient
+        costs one matmul per layer, where forward-mode tangents would cost three (one per axis).
+        The ReLU masks of the forward pass are reused; the result stays differentiable in the
+        parameters, so training needs only a first-order backward.
         """
+        masks = []
         n = len(self.linears)
         for i, lin in enumerate(self.linears):
             h = lin(h)
             if i < n - 1:
-                t = t @ lin.weight.t()
-                active = (h > 0).to(h.dtype)
-                h = h * active
-                t = t * active
-            else:
-                # only the DC rows are needed for the normal
-                w_dc = lin.weight[[0, self.k]]  # (2, hidden)
-                t = t @ w_dc.t()
-        return h, t
+                m = (h > 0).to(h.dtype)
+                h = h * m
+                masks.append(m)
+        re, im = h[:, 0], h[:, self.k]
+        a = _safe_abs(re, im)
+        inv = torch.where(a > 0, 1.0 / torch.where(a > 0, a, torch.ones_like(a)), torch.zeros_like(a))
+        # d|c| / d out = (re, im) / |c| on the two DC columns: a per-point mix of two weight rows
+        w_last = self.linears[-1].weight
+        v = (re * inv)[:, None] * w_last[0] + (im * inv)[:, None] * w_last[self.k]  # (P, hidden)
+        for lin, m in zip(reversed(self.linears[:-1]), reversed(masks), strict=True):
+            v = (v * m) @ lin.weight
+        return h, v
 
     def _raw(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Real and imaginary coefficient parts (P, K) each, zero outside the box."""
@@ -263,18 +272,13 @@ class SHField(torch.nn.Module):
         if not with_normals:
             out = self._mlp(self.encoding.forward(u)) * inside[:, None]
             return self._assemble(out[:, : self.k], out[:, self.k :], dirs)
-        h, tang = self.encoding.forward_with_jacobian(u)
-        # tangents in world units: d h / d x_a = d h / d u_a / size_a
-        tang = tang / self.box_size.to(tang.dtype)[:, None, None]
-        out, t = self._mlp_with_tangents(h, tang)
+        h, jac = self.encoding.forward_with_jacobian(u)  # (P, D), (3, P, D) = d h / d u_a
+        out, v = self._mlp_with_dc_gradient(h)
         out = out * inside[:, None]
-        t = t * inside[None, :, None]
         re, im = out[:, : self.k], out[:, self.k :]
         res = self._assemble(re, im, dirs)
-        # d|c| = (re d re + im d im) / |c|; 0 where c = 0 (safe division)
-        a = _safe_abs(re[:, 0], im[:, 0])
-        inv = torch.where(a > 0, 1.0 / torch.where(a > 0, a, torch.ones_like(a)), torch.zeros_like(a))
-        g = ((t[..., 0] * re[:, 0] + t[..., 1] * im[:, 0]) * inv).t() * INV_SQRT_4PI  # (P, 3)
+        # ∇_x |σ_DC| = Σ_d (d|c_00|/d h_d) (d h_d / d u_a) / size_a / √(4π), 0 outside the box
+        g = (jac * v).sum(-1).t() / self.box_size.to(jac.dtype) * (inside * INV_SQRT_4PI)[:, None]
         n = -safe_normalize(g)
         res["normals"] = n if create_graph else n.detach()
         return res
