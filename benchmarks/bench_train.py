@@ -83,18 +83,22 @@ def _one(args: argparse.Namespace) -> dict:
         loss.backward()
         opt.step()
 
-    for i in range(args.warmup):
-        step(i)
-    if dev.type == "cuda":
-        torch.cuda.synchronize()
-        torch.cuda.reset_peak_memory_stats()
+    from shsas_core.heap import heap_cache
+
     times = []
-    for i in range(args.iters):
-        t0 = time.perf_counter()
-        step(args.warmup + i)
+    # as in fit(): freed CPU buffers stay in the heap (--no-heap-cache: glibc's default mmap/munmap)
+    with heap_cache(dev.type == "cpu" and not args.no_heap_cache):
+        for i in range(args.warmup):
+            step(i)
         if dev.type == "cuda":
             torch.cuda.synchronize()
-        times.append(time.perf_counter() - t0)
+            torch.cuda.reset_peak_memory_stats()
+        for i in range(args.iters):
+            t0 = time.perf_counter()
+            step(args.warmup + i)
+            if dev.type == "cuda":
+                torch.cuda.synchronize()
+            times.append(time.perf_counter() - t0)
     if dev.type == "cuda":
         peak = torch.cuda.max_memory_allocated() / 2**20
     else:
@@ -141,6 +145,8 @@ def main() -> None:
     ap.add_argument("--encoding", default=None, help="hash preset (default: cpu on CPU, paper_gpu on CUDA)")
     ap.add_argument("--modes", default="fast,eager", help="which paths to run (fast, eager or both)")
     ap.add_argument("--renderer-only", action="store_true", help="analytic field: time the renderer alone")
+    ap.add_argument("--no-heap-cache", action="store_true",
+                    help="leave glibc's malloc defaults (large buffers mmapped and unmapped every iteration)")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--mode", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -151,7 +157,8 @@ def main() -> None:
     import torch
 
     print(f"bench_train: device={args.device} threads={args.threads} encoding={args.encoding} "
-          f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations)"
+          f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations) "
+          f"heap_cache={'off' if args.no_heap_cache else 'on'} load={os.getloadavg()[0]:.1f}"
           + (" RENDERER ONLY (analytic field)" if args.renderer_only else ""))
     print(f"{'case':<7}{'bins x rays':>14}{'points':>10}{'fast ms':>10}{'eager ms':>10}{'speed-up':>10}"
           f"{'fast MiB':>10}{'eager MiB':>11}{'fast min':>10}{'eager min':>11}")
@@ -160,7 +167,8 @@ def main() -> None:
         for mode in args.modes.split(","):
             cmd = [sys.executable, __file__, "--case", case, "--mode", mode, "--device", args.device,
                    "--iters", str(args.iters), "--warmup", str(args.warmup), "--threads", str(args.threads),
-                   "--encoding", args.encoding] + (["--renderer-only"] if args.renderer_only else [])
+                   "--encoding", args.encoding] + (["--renderer-only"] if args.renderer_only else []) \
+                + (["--no-heap-cache"] if args.no_heap_cache else [])
             out = subprocess.run(cmd, capture_output=True, text=True)
             if out.returncode != 0:
                 print(f"{case} {mode} failed: {out.stderr.strip().splitlines()[-1:]}")

@@ -55,6 +55,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
+from .heap import heap_cache
 from .progress import ProgressFn, StopFn, check_stop, no_progress
 from .render.renderer import (
     PingGeometry,
@@ -115,6 +116,8 @@ class TrainConfig(BaseModel):
     progressive_sh_every: int | None = Field(
         None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
     checkpoint_every: int = Field(500, ge=1)
+    heap_cache: bool = Field(True, description="keep freed CPU buffers in the heap during the loop "
+                             "(glibc; no per-iteration page faults, see shsas_core.heap)")
     device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
     render: RenderConfig = Field(default_factory=RenderConfig,
                                  description="num_bins/num_rays here are overridden by the fields above")
@@ -314,6 +317,7 @@ def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[
     if cfg.lr_final is None:
         c.pop("iters")
     c.pop("checkpoint_every")
+    c.pop("heap_cache")
     c.pop("device")
     fcfg = getattr(field, "cfg", None)
     return {"train": c, "field": fcfg.model_dump(mode="json") if hasattr(fcfg, "model_dump") else None,
@@ -405,43 +409,44 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
         _init_amplitude(field, amp_mod, data, survey, cfg, device, dtype)
     it_done = start
     t_loop = time.perf_counter()
-    try:
-        for it in range(start, cfg.iters):
-            check_stop(should_stop)
+    with heap_cache(cfg.heap_cache and device.type == "cpu"):
+        try:
+            for it in range(start, cfg.iters):
+                check_stop(should_stop)
+                if cfg.progressive_sh_every is not None:
+                    _set_active_degree(field, it // cfg.progressive_sh_every)
+                if cfg.lr_final is not None:
+                    for group in opt.param_groups:
+                        group["lr"] = _scheduled_lr(cfg, it)
+                gen = _generator(cfg.seed, it)
+                _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
+                out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
+                pred = out["signal"].to(target.dtype)
+                data_loss = (pred - target).abs().pow(2).mean() / data.energy
+                w = cfg.weights
+                loss = w.tof * data_loss
+                if it >= cfg.reg_start and (w.sparsity > 0 or w.any_tv):
+                    reg = _regularisers(field, out, geom, cfg, gen, tv_delta)
+                    loss = loss + w.sparsity * reg["sparsity"]
+                    if w.any_tv:
+                        loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
+                                + w.tv_phase * reg["tv_phase"])
+                opt.zero_grad(set_to_none=True)
+                loss.backward()
+                opt.step()
+                it_done = it + 1
+                loss_hist.append(float(loss.detach()))
+                data_hist.append(float(data_loss.detach()))
+                rate = (it_done - start) / max(time.perf_counter() - t_loop, 1e-9)
+                progress(it_done / cfg.iters, stage, {"loss": loss_hist[-1], "data_loss": data_hist[-1], "it/s": rate})
+                if it_done % cfg.checkpoint_every == 0:
+                    save()
+        except Cancelled:
+            save()
+            raise
+        finally:
             if cfg.progressive_sh_every is not None:
-                _set_active_degree(field, it // cfg.progressive_sh_every)
-            if cfg.lr_final is not None:
-                for group in opt.param_groups:
-                    group["lr"] = _scheduled_lr(cfg, it)
-            gen = _generator(cfg.seed, it)
-            _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
-            out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
-            pred = out["signal"].to(target.dtype)
-            data_loss = (pred - target).abs().pow(2).mean() / data.energy
-            w = cfg.weights
-            loss = w.tof * data_loss
-            if it >= cfg.reg_start and (w.sparsity > 0 or w.any_tv):
-                reg = _regularisers(field, out, geom, cfg, gen, tv_delta)
-                loss = loss + w.sparsity * reg["sparsity"]
-                if w.any_tv:
-                    loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
-                            + w.tv_phase * reg["tv_phase"])
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            it_done = it + 1
-            loss_hist.append(float(loss.detach()))
-            data_hist.append(float(data_loss.detach()))
-            rate = (it_done - start) / max(time.perf_counter() - t_loop, 1e-9)
-            progress(it_done / cfg.iters, stage, {"loss": loss_hist[-1], "data_loss": data_hist[-1], "it/s": rate})
-            if it_done % cfg.checkpoint_every == 0:
-                save()
-    except Cancelled:
-        save()
-        raise
-    finally:
-        if cfg.progressive_sh_every is not None:
-            _set_active_degree(field, None)
+                _set_active_degree(field, None)
     elapsed_loop = time.perf_counter() - t_loop
     save()
     return FitResult(loss_history=loss_hist, data_loss_history=data_hist,
