@@ -431,11 +431,16 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                     if w.any_tv:
                         loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
                                 + w.tv_phase * reg["tv_phase"])
+                loss_value = float(loss.detach())
+                if not math.isfinite(loss_value):
+                    # nothing is stepped or saved: the last checkpoint stays the last good state
+                    raise ShsasError(f"fit: the loss became {loss_value} at iteration {it} (training "
+                                     f"diverged; fix: a lower learning rate, e.g. {cfg.lr / 3:.3g})")
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
                 it_done = it + 1
-                loss_hist.append(float(loss.detach()))
+                loss_hist.append(loss_value)
                 data_hist.append(float(data_loss.detach()))
                 rate = (it_done - start) / max(time.perf_counter() - t_loop, 1e-9)
                 progress(it_done / cfg.iters, stage, {"loss": loss_hist[-1], "data_loss": data_hist[-1], "it/s": rate})

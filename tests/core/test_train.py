@@ -336,3 +336,13 @@ def test_evaluate_data_loss_against_a_direct_sum(small):
     assert got == pytest.approx(num / den, rel=1e-6)
     env = evaluate_data_loss(f, survey, sig, pings, target="envelope", num_rays=32)
     assert 0 <= env < 1.0  # a positive field correlates with |s| better than zeros do
+
+
+def test_diverged_training_stops_with_a_clear_error_and_saves_nothing(small, tmp_path):
+    survey, sig = small
+    f = _field(survey)
+    with torch.no_grad():
+        f.encoding.table.fill_(float("nan"))
+    with pytest.raises(ShsasError, match="loss became nan at iteration 0.*lower learning rate"):
+        fit(f, survey, sig, _cfg(iters=4), checkpoint_dir=tmp_path)
+    assert not (tmp_path / "checkpoint.pt").exists()  # no NaN state is ever written
