@@ -26,7 +26,7 @@ complex σ oscillating along range (long GPU runs); |s_PD| has no carrier, so a 
 the surface explains it within a few hundred iterations (docs/neural.md).
 
 ``A = exp(log_amplitude)`` is one learnable real scale, initialised in closed form before the
-first step as ``‖s‖ / ‖ŝ‖`` on a seeded batch, so the field does not have to grow its output by
+first step as ``‖s‖ / ‖ŝ‖`` over 8 seeded batches, so the field does not have to grow its output by
 orders of magnitude to meet the data's units. Default weights follow the paper's simulated
 setting (regularisers off: λ1 = 1, λ2..λ5 = 0); :data:`AIRSAS_WEIGHTS` keeps the ratios of the
 public AirSAS configuration.
@@ -511,14 +511,19 @@ def _scheduled_lr(cfg: TrainConfig, it: int) -> float:
     return cfg.lr * (cfg.lr_final / cfg.lr) ** (it / (cfg.iters - 1))
 
 
-def _init_amplitude(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, device, dtype) -> None:
-    """Closed-form start for A: ‖s‖ / ‖ŝ‖ over a seeded batch (stream 1 of iteration 0)."""
-    gen = _generator(cfg.seed, 0, stream=1)
-    _p, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
-    with torch.enable_grad():
-        out = _render_batch(field, amp_mod, geom, radii, cfg, gen, create_graph=False)
-    pred = out["signal"].detach()
-    num, den = float(target.abs().pow(2).sum().sqrt()), float(pred.abs().pow(2).sum().sqrt())
+def _init_amplitude(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, device, dtype,
+                    batches: int = 8) -> None:
+    """Closed-form start for A: ‖s‖ / ‖ŝ‖ summed over ``batches`` seeded batches (streams
+    1..batches of iteration 0), so one unusual view does not set the scale for all."""
+    num = den = 0.0
+    for j in range(batches):
+        gen = _generator(cfg.seed, 0, stream=1 + j)
+        _p, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
+        with torch.enable_grad():
+            out = _render_batch(field, amp_mod, geom, radii, cfg, gen, create_graph=False)
+        num += float(target.abs().pow(2).sum())
+        den += float(out["signal"].detach().abs().pow(2).sum())
+    num, den = math.sqrt(num), math.sqrt(den)
     if den > 0 and num > 0 and math.isfinite(num / den):
         with torch.no_grad():
             amp_mod.log_amplitude.fill_(math.log(num / den))

@@ -100,6 +100,8 @@ def test_bad_signals_are_refused(small):
 
 
 def test_sparsity_weight_lowers_density(small):
+    """λ2 > 0 lowers the density. A is pinned: a learned A lets the prior trade density for
+    amplitude (docs/neural.md), which with 15 steps left the effect at the threshold."""
     survey, sig = small
     box = survey.meta.scene_box
     pts = torch.rand(4000, 3, generator=torch.Generator().manual_seed(0)) * torch.tensor(box.size, dtype=torch.float32) \
@@ -107,7 +109,7 @@ def test_sparsity_weight_lowers_density(small):
     means = []
     for w in (0.0, 1000.0):
         f = _field(survey)
-        fit(f, survey, sig, _cfg(iters=15, weights=LossWeights(sparsity=w)))
+        fit(f, survey, sig, _cfg(iters=30, weights=LossWeights(sparsity=w), learn_amplitude=False))
         with torch.no_grad():
             means.append(float(f.density(pts).mean()))
     assert means[1] < 0.5 * means[0]
