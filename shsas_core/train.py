@@ -177,6 +177,26 @@ class _Data:
     energy: float  # expected |s|^2 of a drawn bin (see _prepare)
 
 
+def _window_mask(survey, pings: np.ndarray) -> np.ndarray:
+    """(len(pings), T) bool: samples whose two-way path lies in the scene's range window and
+    beyond the TX-RX baseline (the bins training may draw)."""
+    radii = bin_radii(survey.t0[pings], survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
+    box = survey.meta.scene_box
+    r_lo, r_hi = scene_range_window(survey.tx[pings], survey.rx[pings], box.min, box.max)
+    base = np.linalg.norm(survey.tx[pings] - survey.rx[pings], axis=1)
+    return (radii >= r_lo[:, None]) & (radii <= r_hi[:, None]) & (radii > base[:, None])
+
+
+def _bin_weights(mag: np.ndarray, valid: np.ndarray, uniform_fraction: float) -> np.ndarray:
+    """The bin sampler's pdf per ping, ``(1-u) |s| / Σ|s| + u / n_valid`` over the valid bins
+    (uniform where a ping's valid bins are all zero): mag, valid (N, T) -> (N, T)."""
+    n_valid = np.maximum(valid.sum(axis=1, keepdims=True), 1)
+    w = np.where(valid, mag, 0.0)
+    tot = w.sum(axis=1, keepdims=True)
+    shape = np.where(tot > 0, w / np.where(tot > 0, tot, 1), valid / n_valid)
+    return (1 - uniform_fraction) * shape + uniform_fraction * valid / n_valid
+
+
 def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None,
              uniform_fraction: float, target: str = "coherent") -> _Data:
     s = np.asarray(signals)
@@ -194,11 +214,7 @@ def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None,
         # |s_PD| as a real, non-negative complex target: the band-pass carrier is gone, so a
         # density shell on the surface can explain it without the field learning the pulse PSF
         s = np.abs(s).astype(np.complex128)
-    radii = bin_radii(survey.t0, survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
-    box = survey.meta.scene_box
-    r_lo, r_hi = scene_range_window(survey.tx, survey.rx, box.min, box.max)
-    base = np.linalg.norm(survey.tx - survey.rx, axis=1)
-    valid = (radii >= r_lo[:, None]) & (radii <= r_hi[:, None]) & (radii > base[:, None])
+    valid = _window_mask(survey, np.arange(survey.num_pings))
     pings = (np.arange(survey.num_pings) if ping_indices is None
              else np.unique(np.asarray(ping_indices, dtype=np.int64)))
     if pings.size == 0 or pings.min() < 0 or pings.max() >= survey.num_pings:
@@ -209,14 +225,9 @@ def _prepare(survey, signals: np.ndarray, ping_indices: Sequence[int] | None,
                          "(fix: check t0, sensor positions and meta.scene_box)")
     # E = expected |s|^2 of one drawn bin under the sampling pdf, averaged over training pings,
     # so a zero prediction scores 1.0 in expectation
-    mag2 = np.abs(s[pings]).astype(np.float64) ** 2
-    sel = valid[pings]
-    n_valid = sel.sum(axis=1, keepdims=True)
-    w = np.where(sel, np.sqrt(mag2), 0.0)
-    tot = w.sum(axis=1, keepdims=True)
-    p = (1 - uniform_fraction) * np.where(tot > 0, w / np.where(tot > 0, tot, 1), sel / n_valid) \
-        + uniform_fraction * sel / n_valid
-    energy = float(np.mean((p * mag2).sum(axis=1)))
+    mag = np.abs(s[pings]).astype(np.float64)
+    p = _bin_weights(mag, valid[pings], uniform_fraction)
+    energy = float(np.mean((p * mag**2).sum(axis=1)))
     if not energy > 0:
         raise ShsasError("fit: the signals are all zero inside the scene's range window")
     return _Data(torch.from_numpy(s.astype(np.complex64)), torch.from_numpy(np.abs(s).astype(np.float32)),
@@ -484,16 +495,7 @@ def evaluate_data_loss(field: torch.nn.Module, survey, signals: np.ndarray, ping
     pings = np.asarray(ping_indices, dtype=np.int64)
     s = np.asarray(signals)[pings]
     s = np.abs(s).astype(np.float64) if target == "envelope" else s.astype(np.complex128)
-    radii = bin_radii(survey.t0[pings], survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
-    box = survey.meta.scene_box
-    r_lo, r_hi = scene_range_window(survey.tx[pings], survey.rx[pings], box.min, box.max)
-    base = np.linalg.norm(survey.tx[pings] - survey.rx[pings], axis=1)
-    valid = (radii >= r_lo[:, None]) & (radii <= r_hi[:, None]) & (radii > base[:, None])
-    n_valid = np.maximum(valid.sum(axis=1, keepdims=True), 1)
-    w = np.where(valid, np.abs(s), 0.0)
-    tot = w.sum(axis=1, keepdims=True)
-    p = ((1 - uniform_fraction) * np.where(tot > 0, w / np.where(tot > 0, tot, 1), valid / n_valid)
-         + uniform_fraction * valid / n_valid)
+    p = _bin_weights(np.abs(s), _window_mask(survey, pings), uniform_fraction)
     den = float((p * np.abs(s) ** 2).sum())
     if not den > 0:
         raise ShsasError("evaluate_data_loss: the signals are all zero inside the scene's range window")
