@@ -316,6 +316,25 @@ def _regularisers(field, out: dict, geom: PingGeometry, cfg: TrainConfig, gen: t
     return terms
 
 
+def _iteration_loss(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, it: int, device, dtype,
+                    tv_delta: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Composite loss and data term of iteration ``it`` (every draw seeded by ``(seed, it)``)."""
+    gen = _generator(cfg.seed, it)
+    _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
+    out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
+    pred = out["signal"].to(target.dtype)
+    data_loss = (pred - target).abs().pow(2).mean() / data.energy
+    w = cfg.weights
+    loss = w.tof * data_loss
+    if it >= cfg.reg_start and (w.sparsity > 0 or w.any_tv):
+        reg = _regularisers(field, out, geom, cfg, gen, tv_delta)
+        loss = loss + w.sparsity * reg["sparsity"]
+        if w.any_tv:
+            loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
+                    + w.tv_phase * reg["tv_phase"])
+    return loss, data_loss
+
+
 def _atomic_save(obj: Any, path: Path) -> None:
     tmp = path.with_name(path.name + f".tmp{os.getpid()}")
     torch.save(obj, tmp)
@@ -429,19 +448,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
-                gen = _generator(cfg.seed, it)
-                _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
-                out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
-                pred = out["signal"].to(target.dtype)
-                data_loss = (pred - target).abs().pow(2).mean() / data.energy
-                w = cfg.weights
-                loss = w.tof * data_loss
-                if it >= cfg.reg_start and (w.sparsity > 0 or w.any_tv):
-                    reg = _regularisers(field, out, geom, cfg, gen, tv_delta)
-                    loss = loss + w.sparsity * reg["sparsity"]
-                    if w.any_tv:
-                        loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
-                                + w.tv_phase * reg["tv_phase"])
+                loss, data_loss = _iteration_loss(field, amp_mod, data, survey, cfg, it, device, dtype, tv_delta)
                 loss_value = float(loss.detach())
                 if not math.isfinite(loss_value):
                     # nothing is stepped or saved: the last checkpoint stays the last good state
