@@ -1,7 +1,8 @@
 """Milliseconds per training iteration: fast path vs eager reference, side by side.
 
 fast  = FieldConfig.fast=True (batched hash encoding + analytic normals, one first-order
-        backward) + RenderConfig.fast=True (focal closed-form intersection, cumsum transmittance)
+        backward; on CPU the encoding runs in the C kernel of shsas_core/fields/native.py) +
+        RenderConfig.fast=True (focal closed-form intersection, cumsum transmittance)
 eager = FieldConfig.fast=False (per-level encoding, normals by double backward) +
         RenderConfig.fast=False (ellipsoid-frame quadric, cumprod transmittance)
 
@@ -11,7 +12,7 @@ configuration runs in its own subprocess so peak memory (CPU: max RSS; CUDA: max
 its own. Usage:
 
     python benchmarks/bench_train.py [--device cpu|cuda] [--cases cpu,paper] [--iters N]
-        [--threads T] [--encoding cpu|paper_gpu]
+        [--threads T] [--encoding cpu|paper_gpu] [--no-native] [--no-heap-cache]
 
 Cases: ``cpu`` = 1 ping x 64 bins x 1024 rays, ``paper`` = 1 ping x 200 bins x 4800 rays; L = 3.
 ``--renderer-only`` swaps the neural field for a cheap analytic one (a Gaussian shell with
@@ -147,6 +148,8 @@ def main() -> None:
     ap.add_argument("--renderer-only", action="store_true", help="analytic field: time the renderer alone")
     ap.add_argument("--no-heap-cache", action="store_true",
                     help="leave glibc's malloc defaults (large buffers mmapped and unmapped every iteration)")
+    ap.add_argument("--no-native", action="store_true",
+                    help="fast path without the C encoding kernel (SHSAS_NATIVE=0: the PyTorch fused ops)")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--mode", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -156,6 +159,14 @@ def main() -> None:
         return
     import torch
 
+    if args.no_native:
+        os.environ["SHSAS_NATIVE"] = "0"  # inherited by the per-case subprocesses
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+    from shsas_core.fields import native
+
+    kernel = "PyTorch fused ops" if not native.available() else "C kernel (hashgrid_cpu.c)"
+    print(f"bench_train: fast-path encoding on CPU: {kernel}"
+          + (f" [{native._state['error']}]" if native._state.get("error") else ""))
     print(f"bench_train: device={args.device} threads={args.threads} encoding={args.encoding} "
           f"L=3 normals=on torch={torch.__version__} iters={args.iters} (median of timed iterations) "
           f"heap_cache={'off' if args.no_heap_cache else 'on'} load={os.getloadavg()[0]:.1f}"

@@ -36,6 +36,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from ..errors import ShsasError
+from . import native
 
 # Instant-NGP spatial-hash primes (the first is 1: no multiply on x).
 PRIMES = (1, 2654435761, 805459861)
@@ -186,6 +187,13 @@ class FusedLayout:
         )
         self.mask = layout.table_size - 1
         self.total_rows = layout.total_rows
+        self._native: native.NativeLayout | None = None
+
+    def native_layout(self) -> native.NativeLayout:
+        """The arrays of the C kernel (CPU), built once."""
+        if self._native is None:
+            self._native = native.NativeLayout(self.res, self.mult, self.offsets, self.n_dense, self.mask)
+        return self._native
 
 
 # ---------------------------------------------------------------------------------------------
@@ -425,9 +433,12 @@ class _InterpTable(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, table, u, res, mult, offsets, n_dense, mask, with_jacobian, compiled):
+    def forward(ctx, table, u, res, mult, offsets, n_dense, mask, with_jacobian, compiled, nl):
         ctx.n_rows = table.shape[0]
-        ctx.meta = (n_dense, mask, with_jacobian, compiled)
+        ctx.meta = (n_dense, mask, with_jacobian, compiled, nl)
+        if nl is not None:  # the C kernel (CPU, float32): rows are recomputed in its backward
+            ctx.save_for_backward(u, res, mult, offsets, None, None)
+            return native.forward(u, table, nl, with_jacobian)
         if compiled:
             ctx.save_for_backward(u, res, mult, offsets, None, None)
             return _run_compiled("fwd", _kernel_forward, u, table, res, mult, offsets, n_dense, mask,
@@ -441,12 +452,17 @@ class _InterpTable(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_out, g_jac):
         u, res, mult, offsets, rows, frac = ctx.saved_tensors
-        n_dense, mask, with_jacobian, compiled = ctx.meta
+        n_dense, mask, with_jacobian, compiled, nl = ctx.meta
+        none = (None,) * 9
+        if nl is not None and not torch.is_grad_enabled():
+            g_table = native.backward(u, g_out, g_jac if with_jacobian else None, nl, ctx.n_rows,
+                                      g_out.shape[1] // res.shape[0])
+            return (g_table, *none)
         if compiled and not torch.is_grad_enabled():
             g_table = _run_compiled("bwd", _kernel_backward, u, g_out.contiguous(),
                                     g_jac.contiguous() if with_jacobian else g_out.new_zeros(0),
                                     ctx.n_rows, res, mult, offsets, n_dense, mask, with_jacobian)
-            return g_table, None, None, None, None, None, None, None, None
+            return (g_table, *none)
         if rows is None:
             rows, frac = _rows_frac(u, res, mult, offsets, n_dense, mask)
             frac = frac.to(g_out.dtype)
@@ -454,11 +470,12 @@ class _InterpTable(torch.autograd.Function):
         go = _to_feature_major(g_out, nlev)
         gj = _to_feature_major(g_jac, nlev) if with_jacobian else None
         dv = _lerp_adjoint(go, gj, frac, res.to(g_out.dtype))
-        return _scatter(dv, rows, ctx.n_rows), None, None, None, None, None, None, None, None
+        return (_scatter(dv, rows, ctx.n_rows), *none)
 
 
 def encode_fused(
-    u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False, compiled: bool = False
+    u: torch.Tensor, table: torch.Tensor, fl: FusedLayout, with_jacobian: bool = False, compiled: bool = False,
+    use_native: bool = True,
 ) -> tuple[torch.Tensor, torch.Tensor | None]:
     """Batched encoding: all levels and corners in one gather per feature from the flat table.
 
@@ -475,6 +492,9 @@ def encode_fused(
         with_jacobian: also return the Jacobian.
         compiled: run the no-grad-in-u kernels through ``torch.compile`` (inductor C++ on CPU,
             Triton on CUDA); same values, compiled once per process (tens of seconds on CPU).
+        use_native: on float32 CPU tensors, run the no-grad-in-u forward and first-order
+            backward in the C kernel of :mod:`.native` when it builds (it takes precedence over
+            ``compiled``); same values. A double backward falls back to the PyTorch ops.
 
     Returns:
         features (P, n_levels * F) and, if asked, the Jacobian as tangents ``(3, P, n_levels *
@@ -487,8 +507,9 @@ def encode_fused(
                                  with_jacobian)
         out, jac = _to_point_major(out, jac)
     else:
+        nl = fl.native_layout() if use_native and native.usable(u, table) else None
         out, jac = _InterpTable.apply(table, u.detach(), fl.res.to(u.dtype), fl.mult, fl.offsets, fl.n_dense,
-                                      fl.mask, with_jacobian, compiled)
+                                      fl.mask, with_jacobian, compiled, nl)
     return out, (jac if with_jacobian else None)
 
 
@@ -499,15 +520,18 @@ class HashEncoding(torch.nn.Module):
         cfg: grid shape (:class:`HashEncodingConfig`).
         fast: use :func:`encode_fused` (batched) instead of :func:`encode_reference` (loop).
         compiled: with ``fast``, run the fused kernels through torch.compile.
+        native: with ``fast``, use the C kernel on float32 CPU tensors (:mod:`.native`).
 
     ``forward(u (P,3) in [0,1]^3) -> (P, cfg.output_dim)``.
     """
 
-    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True, compiled: bool = False):
+    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True, compiled: bool = False,
+                 native: bool = True):
         super().__init__()
         self.cfg = cfg or CPU_ENCODING
         self.fast = fast
         self.compiled = compiled
+        self.native = native
         self.layout = LevelLayout(self.cfg)
         self.table = torch.nn.Parameter(
             torch.empty(self.layout.total_rows, self.cfg.n_features).uniform_(-self.cfg.init_scale, self.cfg.init_scale)
@@ -531,13 +555,14 @@ class HashEncoding(torch.nn.Module):
     def forward(self, u: torch.Tensor) -> torch.Tensor:
         self._check(u)
         if self.fast:
-            return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.compiled)[0]
+            return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.compiled,
+                                use_native=self.native)[0]
         return encode_reference(u, self.table, self.layout)
 
     def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Features (P, D) and their Jacobian as tangents (3, P, D) = d features / d u_a."""
         self._check(u)
         out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True,
-                                compiled=self.compiled)
+                                compiled=self.compiled, use_native=self.native)
         assert jac is not None
         return out, jac

@@ -23,6 +23,10 @@ never read out of range).
   extra small matmul per layer). The normal is then an ordinary differentiable function of the
   parameters: training needs one first-order backward instead of a double backward, and the
   encoding is evaluated once per forward.
+* ``fast=True`` on a CPU with float32 (``native=True``, the default): the encoding's forward and
+  first-order backward run in the C kernel of :mod:`.native` (one pass per point and level, the
+  corner values in registers), built on first use; the PyTorch fused ops when no compiler is
+  there. Same values.
 * ``fast=True, compile=True``: the fused encoding kernels through ``torch.compile`` (measured on
   a 2-core CPU: 20–60 s to compile, then no faster than the fused eager kernels; off by default).
 """
@@ -60,6 +64,10 @@ class FieldConfig(BaseModel):
     fast: bool = Field(True, description="batched encoding + analytic normals (same maths)")
     compile: bool = Field(
         False, description="with fast: torch.compile the encoding kernels (slow to compile, no gain on CPU)"
+    )
+    native: bool = Field(
+        True, description="with fast, on CPU (float32): the C encoding kernel, built on first use with the "
+        "system C compiler; PyTorch ops when there is none (same values)"
     )
 
     @property
@@ -112,7 +120,8 @@ class SHField(torch.nn.Module):
         self.cfg = cfg = cfg or FieldConfig()
         self.degree = cfg.sh_degree
         self.k = cfg.num_coefficients
-        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast, compiled=cfg.fast and cfg.compile)
+        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast, compiled=cfg.fast and cfg.compile,
+                                     native=cfg.native)
         dims = [self.encoding.output_dim] + [cfg.hidden] * cfg.layers + [2 * self.k]
         self.linears = torch.nn.ModuleList(torch.nn.Linear(a, b) for a, b in itertools.pairwise(dims))
         last = self.linears[-1]
