@@ -350,8 +350,9 @@ def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[
     c.pop("heap_cache")
     c.pop("device")
     fcfg = getattr(field, "cfg", None)
-    return {"train": c, "field": fcfg.model_dump(mode="json") if hasattr(fcfg, "model_dump") else None,
-            "pings": data.pings.tolist(), "energy": data.energy}
+    # the C encoding kernel or PyTorch ops: same maths, so a checkpoint moves between machines
+    f = fcfg.model_dump(mode="json", exclude={"native"}) if hasattr(fcfg, "model_dump") else None
+    return {"train": c, "field": f, "pings": data.pings.tolist(), "energy": data.energy}
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:

@@ -13,6 +13,15 @@ Points outside the scene box (and non-finite points) have all coefficients set t
 density 0, scattering 0 and normal 0: the scene is empty outside the box (and the encoding is
 never read out of range).
 
+``FieldConfig.directional_scale`` (default 0.1) multiplies the degree >= 1 columns of the MLP's
+output. The function class is unchanged: the weights can grow to compensate. What changes is
+the step size. Adam moves every weight by about ``lr`` per step whatever its gradient, so with
+plain outputs the 2((L+1)^2 - 1) directional coefficients grew as fast as the DC one. On the
+simulated bunny at lr 3e-3 (L = 3), a few steps made some views 10–30x too bright, and the data
+term's answer killed every unit of the second hidden layer. The field was then a constant, with
+zero normals and no gradient. That happened on 2 of 3 seeds; with the factor, none of the 3
+collapsed (docs/neural.md). L = 0 is unaffected.
+
 ``FieldConfig.fast`` picks the implementation, with identical maths:
 
 * ``fast=False`` (reference): Python-loop encoding; normals by ``torch.autograd.grad`` of
@@ -61,6 +70,9 @@ class FieldConfig(BaseModel):
     init_density: float = Field(
         1e-2, gt=0, description="density at initialisation (1/m), from the bias of Re c_00"
     )
+    directional_scale: float = Field(
+        0.1, gt=0, le=1.0, description="the degree >= 1 coefficients are the MLP's outputs times this "
+        "factor (a per-coefficient step size for Adam; 1.0: plain outputs), see the module docstring")
     fast: bool = Field(True, description="batched encoding + analytic normals (same maths)")
     compile: bool = Field(
         False, description="with fast: torch.compile the encoding kernels (slow to compile, no gain on CPU)"
@@ -132,6 +144,9 @@ class SHField(torch.nn.Module):
             last.weight.mul_(0.1)
             last.bias.zero_()
             last.bias[0] = cfg.init_density / (cfg.zeta * INV_SQRT_4PI)
+        scale = torch.full((2 * self.k,), float(cfg.directional_scale), dtype=torch.float64)
+        scale[0] = scale[self.k] = 1.0  # Re and Im of c_00
+        self.register_buffer("out_scale", scale, persistent=False)
         box = cfg.scene_box
         self.register_buffer("box_min", torch.tensor(box.min, dtype=torch.float32), persistent=False)
         self.register_buffer("box_size", torch.tensor(box.size, dtype=torch.float32), persistent=False)
@@ -156,7 +171,11 @@ class SHField(torch.nn.Module):
             h = lin(h)
             if i < len(self.linears) - 1:
                 h = torch.relu(h)
-        return h
+        return self._scaled(h)
+
+    def _scaled(self, out: torch.Tensor) -> torch.Tensor:
+        """Apply ``directional_scale`` to the degree >= 1 columns (nothing to do at L = 0)."""
+        return out if self.k == 1 else out * self.out_scale.to(out.dtype)
 
     def _mlp_with_dc_gradient(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """MLP output (P, 2K) and d|c_00| / d h (P, D), the gradient of the DC magnitude with
@@ -183,7 +202,7 @@ class SHField(torch.nn.Module):
         v = (re * inv)[:, None] * w_last[0] + (im * inv)[:, None] * w_last[self.k]  # (P, hidden)
         for lin, m in zip(reversed(self.linears[:-1]), reversed(masks), strict=True):
             v = (v * m) @ lin.weight
-        return h, v
+        return self._scaled(h), v  # the DC columns are not scaled, so v stands
 
     def _raw(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Real and imaginary coefficient parts (P, K) each, zero outside the box."""

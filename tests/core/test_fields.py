@@ -283,3 +283,22 @@ def test_compiled_kernels_match_fused_eager() -> None:
         gb = torch.autograd.grad(_loss(b), list(comp.parameters()))
         for u, v in zip(gb, ga, strict=True):
             torch.testing.assert_close(u, v, rtol=0, atol=1e-9)
+
+
+def test_directional_scale_multiplies_only_the_degree_ge_1_coefficients() -> None:
+    torch.manual_seed(0)
+    plain = SHField(FieldConfig(sh_degree=2, encoding=ENC, scene_box=BOX, directional_scale=1.0)).double()
+    scaled = SHField(FieldConfig(sh_degree=2, encoding=ENC, scene_box=BOX, directional_scale=0.1)).double()
+    scaled.load_state_dict(plain.state_dict())
+    x, d = _inside(200), _dirs(200)
+    c1, c2 = plain.coefficients(x), scaled.coefficients(x)
+    torch.testing.assert_close(c2[:, 0], c1[:, 0], rtol=0, atol=0)
+    torch.testing.assert_close(c2[:, 1:], 0.1 * c1[:, 1:], rtol=1e-12, atol=0)
+    # density and normals come from c_00 alone: unchanged
+    a, b = plain(x, d), scaled(x, d)
+    for k in ("density", "dc", "normals"):
+        torch.testing.assert_close(b[k], a[k], rtol=0, atol=1e-12)
+    # σ(ω) = c_00 Y_00 + 0.1 Σ_{l>=1} c_lm Y_lm
+    y = sh_basis(d, 2).to(torch.float64)
+    want = c1[:, 0] * y[:, 0] + 0.1 * (c1[:, 1:] * y[:, 1:]).sum(1)
+    torch.testing.assert_close(b["scattering"], want, rtol=1e-10, atol=1e-12)
