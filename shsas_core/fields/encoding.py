@@ -248,7 +248,7 @@ def _gather(table: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
     tab_t = table.t().contiguous()  # (F, N): one 1-D gather per feature
     flat = rows.reshape(-1)
     feat = tab_t.shape[0]
-    if torch.is_grad_enabled():
+    if torch.is_grad_enabled() or torch.compiler.is_compiling():  # inductor: no out= into views
         v = torch.stack([tab_t[f].index_select(0, flat) for f in range(feat)])
     else:  # gather straight into the output (no stack copy); out= is not differentiable
         v = tab_t.new_empty((feat, flat.shape[0]))
@@ -308,7 +308,7 @@ def _lerp_adjoint(
     # Each axis splits a gradient g into (1 - f) g + ... and f g + ...; the (1 - f) half is
     # computed as g - (f half), which halves the number of full-size products.
     fx, fy, fz = frac[0], frac[1], frac[2]
-    if g_jac is not None and not torch.is_grad_enabled():
+    if g_jac is not None and not torch.is_grad_enabled() and not torch.compiler.is_compiling():
         return _lerp_adjoint_into(g_out, g_jac, fx, fy, fz, res)
 
     def split(total: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:

@@ -283,6 +283,11 @@ def test_compiled_kernels_match_fused_eager() -> None:
         gb = torch.autograd.grad(_loss(b), list(comp.parameters()))
         for u, v in zip(gb, ga, strict=True):
             torch.testing.assert_close(u, v, rtol=0, atol=1e-9)
+    # the compiled kernels really ran: a compile failure falls back to the eager ones with a
+    # warning, which would make the comparisons above trivially true
+    from shsas_core.fields import encoding
+
+    assert not encoding._COMPILE_BROKEN, encoding._COMPILE_BROKEN
 
 
 def test_directional_scale_multiplies_only_the_degree_ge_1_coefficients() -> None:
