@@ -3,9 +3,11 @@
 One training-like step: ``out = field(x, dirs)`` (density, scattering, normals with
 ``create_graph=True``), a loss that uses all three, ``loss.backward()`` to the parameters.
 
-Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fast``
-(fused batched encoding + analytic normals, ``FieldConfig(fast=True)``), ``compiled``
-(``fast`` plus ``FieldConfig(compile=True)``: encoding kernels through torch.compile).
+Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fused``
+(batched encoding in PyTorch ops + analytic normals, ``FieldConfig(fast=True, native=False)``),
+``fast`` (the default: ``fused`` with the encoding in the C kernel on a float32 CPU, else the
+same as ``fused``), ``compiled`` (``fused`` plus ``FieldConfig(compile=True)``: encoding kernels
+through torch.compile).
 
 Timing: all modes live in one process and their steps are interleaved round by round, so a
 load spike on a shared machine hits every mode alike; min and median over the rounds are
@@ -34,7 +36,7 @@ from shsas_core.device import resolve_device
 from shsas_core.fields import FieldConfig, SHField, encoding_preset
 
 SIZES = (64 * 1024, 200 * 4800)
-MODES = ("eager", "fast", "compiled")
+MODES = ("eager", "fused", "fast", "compiled")
 
 
 def _rss_mb() -> float:
@@ -45,7 +47,7 @@ def _rss_mb() -> float:
 def _make(mode: str, preset: str, degree: int, dev: torch.device) -> SHField:
     torch.manual_seed(0)  # same parameters in every mode
     cfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), fast=mode != "eager",
-                      compile=mode == "compiled")
+                      compile=mode == "compiled", native=mode == "fast")
     return SHField(cfg).to(dev)
 
 
@@ -146,8 +148,8 @@ def main() -> None:
             else:
                 print(f"{p:>9} {mode:>8} timing {tim} {mem_s}", flush=True)
         if isinstance(tim, dict) and "eager" in tim:
-            for mode in ("fast", "compiled"):
-                if mode in tim:
+            for mode in ("fused", "fast", "compiled"):
+                if mode in tim and "eager" in tim:
                     sp = tim["eager"]["median_ms"] / tim[mode]["median_ms"]
                     print(f"{p:>9} speedup eager/{mode} (median): {sp:.2f}x")
 
