@@ -41,9 +41,15 @@ static inline void cell(const Layout *lay, int64_t l, const float *u, int64_t ro
     const float n = lay->res[l];
     int64_t lo[3];
     for (int a = 0; a < 3; ++a) {
-        const float xs = u[a] * n;
-        /* u is clamped to [0, 1], so xs >= 0 and truncation is floor (floorf is a libm call
-         * on baseline x86-64, a third of the cost of this function) */
+        /* the caller clamps u to [0, 1]; NaN survives a clamp, and a NaN cast to an integer
+         * would index outside the table, so it reads the origin's cell here (the field zeroes
+         * such points anyway) */
+        float ua = u[a];
+        if (!(ua >= 0.0f)) ua = 0.0f;
+        if (ua > 1.0f) ua = 1.0f;
+        const float xs = ua * n;
+        /* xs >= 0, so truncation is floor (floorf is a libm call on baseline x86-64, a third of
+         * the cost of this function) */
         float c = (float)(int64_t)xs;
         if (c > n - 1.0f) c = n - 1.0f;
         if (c < 0.0f) c = 0.0f;

@@ -108,6 +108,23 @@ def test_double_backward_falls_back_to_the_torch_ops() -> None:
     torch.testing.assert_close(res[0], res[1], rtol=1e-4, atol=1e-3)
 
 
+def test_non_finite_points_cannot_index_outside_the_table() -> None:
+    # a NaN survives clamp(0, 1); cast to an integer it would be an out-of-bounds row (a crash,
+    # not an exception, in C): the kernel reads the origin's cell instead
+    lay, fl, table, u = _case(50)
+    bad = u.clone()
+    bad[10] = float("nan")
+    bad[11, 1] = float("inf")
+    bad[12, 2] = -float("inf")
+    tab = table.clone().requires_grad_(True)
+    out, jac = encode_fused(bad, tab, fl, with_jacobian=True, use_native=True)
+    assert torch.isfinite(out).all() and torch.isfinite(jac).all()
+    fixed = bad.nan_to_num(nan=0.0).clamp(0.0, 1.0)
+    torch.testing.assert_close(out, encode_reference(fixed, table, lay), rtol=0, atol=1e-6)
+    (g,) = torch.autograd.grad(out.sum() + jac.sum(), tab)
+    assert torch.isfinite(g).all()
+
+
 def test_float64_takes_the_torch_path() -> None:
     # the kernel is float32 only: float64 must agree with the reference to float64 precision
     lay, fl, table, u = _case(100)
