@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor
 
 from ..errors import ShsasError
+from ..heap import heap_cache
 from .geometry import area_jacobian, intersect_focal, intersect_quadric, points_on_rays
 from .sampling import beam_axes, bin_radii, cone_directions, cone_half_angles, scene_range_window
 from .transmittance import transmittance, transmittance_cumprod
@@ -193,6 +194,21 @@ def render_transients(field: torch.nn.Module, survey, ping_indices: Sequence[int
     r_lo, r_hi = scene_range_window(survey.tx[idx], survey.rx[idx], box.min, box.max)
     out = np.zeros((len(idx), n_t), dtype=np.complex64)
     gen = torch.Generator().manual_seed(int(seed))
+    # CPU: keep freed buffers in the heap between pings (measured on 24 pings x 4096 rays: 12.6–16.1 s
+    # -> 10.1 s wall, 5–9 s -> 0.3 s of system time spent zeroing remapped pages)
+    with heap_cache(torch.device(device).type == "cpu"):
+        _render_rows(field, survey, idx, radii_all, r_lo, r_hi, cfg, device, dtype, gen, bins_per_chunk, out)
+    out *= np.complex64(amplitude)
+    factor = passband_factor(survey, idx)
+    if factor is not None:  # back to the survey's baseband convention
+        out = (out * np.conj(factor)).astype(np.complex64)
+    return out
+
+
+def _render_rows(field: torch.nn.Module, survey, idx: np.ndarray, radii_all: np.ndarray, r_lo: np.ndarray,
+                 r_hi: np.ndarray, cfg: RenderConfig, device, dtype: torch.dtype, gen: torch.Generator,
+                 bins_per_chunk: int, out: np.ndarray) -> None:
+    """The per-ping loop of :func:`render_transients`: fills ``out`` (len(idx), T) in place, A = 1."""
     for row, n in enumerate(idx):
         geom = ping_geometry(survey, [n], device, dtype, cfg.beamwidth_deg)
         keep = np.nonzero((radii_all[row] >= r_lo[row]) & (radii_all[row] <= r_hi[row]))[0]
@@ -214,11 +230,7 @@ def render_transients(field: torch.nn.Module, survey, ping_indices: Sequence[int
         cat = {k: torch.cat(v, dim=1) for k, v in parts.items()}
         trans = transmittance(cat["density"], cat["l"], cfg.two_way_transmittance)
         sig = (cat["scattering"] * (cat["weight"] * trans * cat["lambertian"]).to(cat["scattering"].dtype)).sum(-1)
-        out[row, keep] = (amplitude * sig[0]).cpu().numpy().astype(np.complex64)
-    factor = passband_factor(survey, idx)
-    if factor is not None:  # back to the survey's baseband convention
-        out = (out * np.conj(factor)).astype(np.complex64)
-    return out
+        out[row, keep] = sig[0].cpu().numpy().astype(np.complex64)
 
 
 def passband_factor(survey, ping_indices: Sequence[int] | np.ndarray | None = None) -> np.ndarray | None:
