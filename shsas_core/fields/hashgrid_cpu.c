@@ -77,6 +77,13 @@ static inline void cell(const Layout *lay, int64_t l, const float *u, int64_t ro
  * points gather from it: point-major order missed the cache on every corner. */
 #define CHUNK 512
 
+/* Points p in [w->p0, w->p1) in blocks of CHUNK, every level l within a block (see CHUNK). */
+#define FOR_BLOCKED_POINT_LEVEL(w, nl, p, l)                                           \
+    for (int64_t q0_ = (w)->p0; q0_ < (w)->p1; q0_ += CHUNK)                            \
+        for (int64_t l = 0; l < (nl); ++l)                                              \
+            for (int64_t p = q0_, pe_ = q0_ + CHUNK < (w)->p1 ? q0_ + CHUNK : (w)->p1; \
+                 p < pe_; ++p)
+
 typedef struct {
     const Layout *lay;
     const float *u, *table, *g_out, *g_jac;
@@ -93,15 +100,12 @@ static void *forward_range(void *arg)
     const Layout *lay = w->lay;
     const int64_t nl = lay->n_levels, nf = lay->n_features, d = nl * nf;
     const int64_t plane = w->n_points * d;
-    for (int64_t q0 = w->p0; q0 < w->p1; q0 += CHUNK)
-    for (int64_t l = 0; l < nl; ++l)
-    for (int64_t p = q0; p < (q0 + CHUNK < w->p1 ? q0 + CHUNK : w->p1); ++p) {
-        const float *up = w->u + 3 * p;
+    FOR_BLOCKED_POINT_LEVEL(w, nl, p, l) {
+        int64_t rows[8];
+        float fr[3];
+        cell(lay, l, w->u + 3 * p, rows, fr);
+        const float n = lay->res[l];
         {
-            int64_t rows[8];
-            float fr[3];
-            cell(lay, l, up, rows, fr);
-            const float n = lay->res[l];
             for (int64_t f = 0; f < nf; ++f) {
                 float v[8];
                 for (int c = 0; c < 8; ++c) v[c] = w->table[rows[c] * nf + f];
@@ -137,15 +141,12 @@ static void *backward_range(void *arg)
     const int64_t plane = w->n_points * d;
     const float *restrict g_out = w->g_out, *restrict g_jac = w->g_jac;
     float *restrict g = w->g_tab;
-    for (int64_t q0 = w->p0; q0 < w->p1; q0 += CHUNK)
-    for (int64_t l = 0; l < nl; ++l)
-    for (int64_t p = q0; p < (q0 + CHUNK < w->p1 ? q0 + CHUNK : w->p1); ++p) {
-        const float *up = w->u + 3 * p;
+    FOR_BLOCKED_POINT_LEVEL(w, nl, p, l) {
+        int64_t rows[8];
+        float fr[3];
+        cell(lay, l, w->u + 3 * p, rows, fr);
+        const float n = lay->res[l];
         {
-            int64_t rows[8];
-            float fr[3];
-            cell(lay, l, up, rows, fr);
-            const float n = lay->res[l];
             /* d out / d v_c = Wz Wy Wx and d jac_a / d v_c (slope S = n (-1, +1) on axis a), with
              * per-axis weights W = (1 - f, f): the same for every feature, so built once */
             const float wx[2] = {1.0f - fr[0], fr[0]}, wy[2] = {1.0f - fr[1], fr[1]},
@@ -218,9 +219,14 @@ static int64_t clamp_threads(int64_t n_threads, int64_t n_points)
     return n_threads < useful ? n_threads : useful;
 }
 
-static void split(Work *works, int64_t n_threads, int64_t n)
+/* The fields every worker shares, and its contiguous point range [p0, p1). */
+static void init_works(Work *works, int64_t n_threads, const Layout *lay, const float *u, int64_t n)
 {
     for (int64_t t = 0; t < n_threads; ++t) {
+        memset(&works[t], 0, sizeof(Work));
+        works[t].lay = lay;
+        works[t].u = u;
+        works[t].n_points = n;
         works[t].p0 = n * t / n_threads;
         works[t].p1 = n * (t + 1) / n_threads;
     }
@@ -234,16 +240,12 @@ int shsas_hash_forward(int64_t n_points, const float *u, const float *table, int
     const Layout lay = {n_levels, n_features, mask, res, mult, offsets, dense};
     Work works[MAX_THREADS];
     n_threads = clamp_threads(n_threads, n_points);
+    init_works(works, n_threads, &lay, u, n_points);
     for (int64_t t = 0; t < n_threads; ++t) {
-        memset(&works[t], 0, sizeof(Work));
-        works[t].lay = &lay;
-        works[t].u = u;
         works[t].table = table;
         works[t].out = out;
         works[t].jac = jac;
-        works[t].n_points = n_points;
     }
-    split(works, n_threads, n_points);
     return run_parallel(forward_range, works, n_threads);
 }
 
@@ -259,17 +261,13 @@ int shsas_hash_backward(int64_t n_points, const float *u, const float *g_out, co
     const Layout lay = {n_levels, n_features, mask, res, mult, offsets, dense};
     Work works[MAX_THREADS];
     n_threads = clamp_threads(n_threads, n_points);
+    init_works(works, n_threads, &lay, u, n_points);
     for (int64_t t = 0; t < n_threads; ++t) {
-        memset(&works[t], 0, sizeof(Work));
-        works[t].lay = &lay;
-        works[t].u = u;
         works[t].g_out = g_out;
         works[t].g_jac = g_jac;
         works[t].g_tab = t == 0 ? g_tab : privates[t - 1];
-        works[t].n_points = n_points;
         works[t].n_rows = n_rows;
     }
-    split(works, n_threads, n_points);
     int status = run_parallel(backward_range, works, n_threads);
     if (n_threads > 1) {
         for (int64_t t = 0; t < n_threads; ++t) {
