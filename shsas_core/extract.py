@@ -29,6 +29,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from .errors import ShsasError
 from .volume import Grid, Volume
 
+#: The paper's fixed iso level on the normalised magnitude (reported beside the rule's τ).
+PAPER_TAU = 0.2
+
 
 class ExtractConfig(BaseModel):
     """How to turn a volume into a point cloud and a mesh."""

@@ -303,11 +303,15 @@ def score_mesh(vertices: np.ndarray, faces: np.ndarray, gt: GroundTruth) -> dict
     return out
 
 
-def score_reconstruction(points: np.ndarray | None, mesh: Any | None, gt: GroundTruth) -> dict[str, float]:
-    """Flat dict: ``pc_<metric>`` for the point cloud and ``mesh_<metric>`` for the mesh."""
+def score_reconstruction(points: np.ndarray | None, mesh: Any | None, gt: GroundTruth,
+                         fixed_points: np.ndarray | None = None) -> dict[str, float]:
+    """Flat dict: ``pc_<metric>`` for the point cloud, ``mesh_<metric>`` for the mesh and
+    ``fixed_<metric>`` for the point cloud at the paper's fixed level (when given)."""
     out: dict[str, float] = {}
     if points is not None:
         out.update({f"pc_{k}": v for k, v in score_points(points, gt).items()})
+    if fixed_points is not None:
+        out.update({f"fixed_{k}": v for k, v in score_points(fixed_points, gt).items()})
     if mesh is not None:
         out.update({f"mesh_{k}": v for k, v in score_mesh(mesh.vertices, mesh.faces, gt).items()})
     return out

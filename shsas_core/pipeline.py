@@ -5,7 +5,10 @@
 1. read the survey (when given a path) and split off held-out pings (``spec.holdout_fraction``);
 2. pulse deconvolution once (``spec.deconvolution``) → ``s_PD`` per ping, checkpointed;
 3. every requested method: ``backprojection`` (complex image), ``reed`` (neural field, SH degree 0)
-   and ``shsas`` (SH degree ``spec.sh_degree``) → a volume on ``Grid.over(scene_box, spec.grid)``;
+   and ``shsas`` (SH degree ``spec.sh_degree``) → a volume on ``Grid.over(scene_box,
+   spec.grid_count(scene_box))``. The backprojection image is computed once per job (cached as
+   ``checkpoints/backprojection_image.npy``): it is the backprojection method's volume and, with
+   ``spec.init == "backprojection"``, the start of the neural methods (:mod:`shsas_core.warmstart`);
 4. extraction at τ (``spec.threshold`` or the rule of :mod:`shsas_core.extract`) → point cloud and
    mesh; export to PLY/GLB/NPY;
 5. metrics against the ground truth when the survey has one (protocol of :mod:`shsas_core.metrics`);
@@ -43,7 +46,7 @@ from .export import (
     write_point_cloud_ply,
     write_volume_npy,
 )
-from .extract import ExtractConfig, extract, field_volume
+from .extract import PAPER_TAU, ExtractConfig, extract, field_volume, point_cloud
 from .metrics import GroundTruth, finite_or_none, score_reconstruction
 from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
 from .report import MethodReport, Report, ReportFigures, SignalFit, write_report
@@ -54,7 +57,7 @@ from .volume import Grid, Volume
 #: Relative cost of each stage, for the overall progress fraction.
 _WEIGHTS = {"deconvolution": 0.05, "backprojection": 0.15, "reed": 1.0, "shsas": 1.0, "report": 0.05}
 #: Bump when extraction changes: finished runs then re-extract from their saved volumes.
-EXTRACT_VERSION = 2
+EXTRACT_VERSION = 3
 #: Pings whose signal fit is drawn in the report.
 _FIT_PINGS = 3
 #: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
@@ -178,7 +181,8 @@ def run(
     train_idx, held_idx = holdout_split(survey.num_pings, spec.holdout_fraction, spec.seed)
     train = survey.subset(train_idx)
     train.extras["deconvolved"] = s_pd[train_idx]
-    grid = Grid.over(survey.meta.scene_box, spec.grid)
+    grid = Grid.over(survey.meta.scene_box, spec.grid_count(survey.meta.scene_box))
+    image = _ImageCache(train, grid, device, ckpt, should_stop)
     gt = None
     if survey.has_ground_truth:
         t = time.perf_counter()
@@ -190,7 +194,7 @@ def run(
     for method in spec.methods:
         check_stop(should_stop)
         prog = sub_progress(progress, *bounds[method])
-        rep, vol, mesh_, fit = _run_method(method, spec, survey, train, s_pd, train_idx, held_idx, grid,
+        rep, vol, mesh_, fit = _run_method(method, spec, survey, s_pd, train_idx, held_idx, grid, image,
                                            gt, device, out, ckpt / method, prog, should_stop)
         reports.append(rep)
         timings[method] = rep.seconds
@@ -270,8 +274,36 @@ def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Pat
     return s_pd
 
 
-def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Survey, s_pd: np.ndarray,
-                train_idx: np.ndarray, held_idx: np.ndarray, grid: Grid, gt: GroundTruth | None,
+class _ImageCache:
+    """The job's backprojection image of the training pings on the job's grid, computed on first
+    use and kept in ``ckpt/backprojection_image.npy`` (so a resumed job does not recompute it)."""
+
+    def __init__(self, train: Survey, grid: Grid, device: Any, ckpt: Path, should_stop: StopFn):
+        self._train, self._grid, self._device, self._should_stop = train, grid, device, should_stop
+        self._path = ckpt / "backprojection_image.npy"
+        self._volume: Volume | None = None
+
+    def __call__(self, progress: ProgressFn) -> Volume:
+        if self._volume is None and self._path.exists():
+            arr = np.load(self._path, allow_pickle=False)
+            if arr.shape == self._grid.shape:
+                self._volume = Volume(self._grid, arr, name="backprojection")
+        if self._volume is None:
+            from .backprojection import backproject_survey
+            from .export import atomic_path
+
+            vol = backproject_survey(self._train, self._grid, self._train.extras["deconvolved"],
+                                     device=self._device, progress=progress, should_stop=self._should_stop)
+            with atomic_path(self._path) as tmp, open(tmp, "wb") as fh:
+                np.save(fh, vol.values)
+            self._volume = vol
+        progress(1.0, "backprojection", {})
+        return self._volume
+
+
+def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
+                train_idx: np.ndarray, held_idx: np.ndarray, grid: Grid, image: _ImageCache,
+                gt: GroundTruth | None,
                 device: Any, out: Path, ckpt: Path, progress: ProgressFn,
                 should_stop: StopFn) -> tuple[MethodReport, Volume, Any, SignalFit | None]:
     """Reconstruct, extract, export and score one method (or reload it when already done)."""
@@ -301,12 +333,9 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, train: Su
     signal_errs: dict[str, float] = {}
     fit_fig: SignalFit | None = None
     if method == "backprojection":
-        from .backprojection import backproject_survey
-
-        vol = backproject_survey(train, grid, train.extras["deconvolved"], device=device,
-                                 progress=sub_progress(progress, 0.0, 0.8), should_stop=should_stop)
+        vol = image(sub_progress(progress, 0.0, 0.8))
     else:
-        field, result = _fit_neural(method, spec, survey, s_pd, train_idx, device, ckpt,
+        field, result = _fit_neural(method, spec, survey, s_pd, train_idx, image, device, ckpt,
                                     sub_progress(progress, 0.0, 0.8), should_stop)
         loss_curve = _loss_curve(result)
         check_stop(should_stop)
@@ -349,7 +378,9 @@ def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth 
     metrics: dict[str, float | None] = {}
     if gt is not None:
         check_stop(should_stop)
-        metrics = finite_or_none(score_reconstruction(cloud.points, mesh_, gt))
+        # the paper's fixed level beside the rule's, so a figure can be compared with Table 1
+        fixed = point_cloud(vol, PAPER_TAU).points
+        metrics = finite_or_none(score_reconstruction(cloud.points, mesh_, gt, fixed))
     rep = MethodReport(method=method, sh_degree=sh_degree_of(method, spec), threshold=tau,
                        points=len(cloud), faces=len(mesh_.faces), seconds=time.perf_counter() - t0,
                        metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
@@ -368,21 +399,30 @@ def _read_json(path: Path) -> Any:
 
 
 def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
-                train_idx: np.ndarray, device: Any, ckpt: Path, progress: ProgressFn,
+                train_idx: np.ndarray, image: _ImageCache, device: Any, ckpt: Path, progress: ProgressFn,
                 should_stop: StopFn) -> tuple[Any, Any]:
-    """Build the SH field for ``method`` and fit it to the training pings' s_PD (checkpointed
-    under ``ckpt``; a compatible checkpoint there is resumed)."""
+    """Build the SH field for ``method``, start it from the backprojection image when
+    ``spec.init`` says so, and fit it to the training pings' s_PD (checkpointed under ``ckpt``; a
+    compatible checkpoint there is resumed, and then holds the started field already)."""
     import torch
 
     from .fields import FieldConfig, SHField
-    from .train import fit
+    from .train import CHECKPOINT_NAME, fit
+    from .warmstart import WarmStartConfig, distill
 
     torch.manual_seed(spec.seed)
     fcfg = FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box,
                        encoding=encoding_config(spec.encoding))
     field = SHField(fcfg).to(device)
+    fit_progress = progress
+    if spec.init == "backprojection":
+        fit_progress = sub_progress(progress, 0.25, 1.0)
+        if not (ckpt / CHECKPOINT_NAME).exists():
+            vol = image(sub_progress(progress, 0.0, 0.15))
+            distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
+                    should_stop=should_stop, stage=f"warm start:{method}")
     cfg = train_config(spec)
-    result = fit(field, survey, s_pd, cfg, progress=progress, should_stop=should_stop,
+    result = fit(field, survey, s_pd, cfg, progress=fit_progress, should_stop=should_stop,
                  checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}")
     return field, result
 

@@ -31,8 +31,12 @@ METRICS_PROTOCOL = (
     "two mean squared NN distances (m²); Chamfer-L1 = mean of the two unsquared means (m); "
     "IoU/precision/recall/F1 on 5 mm voxels over the scene box (GT: inside or within one voxel of "
     "the surface; prediction: voxels holding a point / mesh sample); F-score at 5 mm on points. "
-    "pc_* = thresholded point cloud, mesh_* = marching-cubes mesh resampled to points."
+    "pc_* = thresholded point cloud (τ by the extraction rule), fixed_* = point cloud at the "
+    "paper's fixed level τ = 0.2, mesh_* = marching-cubes mesh resampled to points."
 )
+
+#: The scored outputs of a method, in table order: (metric key prefix, label).
+OUTPUT_ROWS: list[tuple[str, str]] = [("pc", "point cloud"), ("fixed", "point cloud, τ = 0.2"), ("mesh", "mesh")]
 
 #: Metrics shown in the HTML table and the CLI, in this order (key, header, format).
 TABLE_COLUMNS: list[tuple[str, str, str]] = [
@@ -250,7 +254,7 @@ def _fmt(v: float | None, fmt: str) -> str:
 def metrics_table_html(report: Report) -> str:
     rows = []
     for m in report.methods:
-        for rep, label in (("pc", "point cloud"), ("mesh", "mesh")):
+        for rep, label in OUTPUT_ROWS:
             if not any(k.startswith(rep + "_") for k in m.metrics):
                 continue
             cells = "".join(f"<td>{_fmt(m.metrics.get(f'{rep}_{k}'), f)}</td>" for k, _, f in TABLE_COLUMNS)

@@ -11,6 +11,9 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from .survey import SceneBox
+from .volume import auto_grid_count
+
 Method = Literal["backprojection", "reed", "shsas"]
 METHODS: tuple[str, ...] = ("backprojection", "reed", "shsas")
 
@@ -24,7 +27,10 @@ class ReconstructionSpec(BaseModel):
                                   min_length=1, max_length=3)
     sh_degree: int = Field(3, ge=0, le=3, description="SH degree L for method 'shsas' (reed is L=0)")
     iters: int = Field(1500, ge=1, le=200_000, description="training iterations per neural method")
-    grid: int = Field(64, ge=8, le=512, description="voxels along the longest scene-box axis")
+    grid: int | None = Field(
+        None, ge=8, le=512, description="voxels along the longest scene-box axis; None: the count that "
+        "makes voxels at most 2.5 mm (half the 5 mm metric voxel, so extraction does not cap the "
+        "metric), see shsas_core.volume.auto_grid_count")
     device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     deconvolution: Literal["wiener", "neural", "none"] = "wiener"
@@ -34,6 +40,10 @@ class ReconstructionSpec(BaseModel):
     pings_per_batch: int = Field(1, ge=1, le=64)
     holdout_fraction: float = Field(0.0, ge=0, lt=0.9, description="pings held out for novel-view errors")
     lr: float = Field(1e-3, gt=0, le=1.0, description="Adam learning rate of the neural methods")
+    init: Literal["backprojection", "none"] = Field(
+        "backprojection", description="start of the neural methods: backprojection distils the "
+        "backprojection image into the field before the time-of-flight fit (shsas_core.warmstart; "
+        "converges at CPU budgets); none starts from the near-empty field of the paper")
     lr_final: float | None = Field(None, gt=0, le=1.0, description="learning rate at the last iteration "
                                    "(exponential decay from lr); None: constant lr as in the paper")
     target: Literal["coherent", "envelope"] = Field(
@@ -43,9 +53,23 @@ class ReconstructionSpec(BaseModel):
         "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
         "small (8 levels, 2^13 rows, finest 128: fastest, for short CPU runs), paper_gpu (the paper's)")
 
+    def grid_count(self, box: SceneBox) -> int:
+        """Voxels along the longest axis of ``box`` (``grid``, or the 2.5 mm rule when None)."""
+        return self.grid if self.grid is not None else auto_grid_count(box)
+
     @field_validator("methods")
     @classmethod
     def _unique(cls, v: list[str]) -> list[str]:
         if len(set(v)) != len(v):
             raise ValueError(f"methods must not repeat: {v}")
         return v
+
+
+#: The paper's setting (SH-SAS §5: Adam at lr 1e-3, coherent data term, 200 bins x ~4,800 rays per
+#: batch, the paper's hash grid, trained from the empty field). One flag away (``--preset paper``):
+#: it needs a GPU's iteration budget (the paper trains ~50k iterations on simulated scenes).
+PAPER_SETTINGS: dict[str, object] = {
+    "init": "none", "target": "coherent", "lr": 1e-3, "encoding": "paper_gpu",
+    "num_bins": 200, "num_rays": 4800, "iters": 50_000,
+}
+PRESETS: dict[str, dict[str, object]] = {"default": {}, "paper": PAPER_SETTINGS}

@@ -8,6 +8,18 @@ import numpy as np
 
 from .survey import SceneBox
 
+#: Default extraction voxel, m: half the metrics' 5 mm occupancy voxel, so that a surface one voxel
+#: thick still marks every metric voxel it crosses (at 5 mm, a reconstruction's voxel lattice
+#: aliases against the metric's and caps its F1).
+DEFAULT_VOXEL_M = 0.0025
+#: Upper bound of the automatic count: 256^3 voxels are ~17 M points, the most a CPU job samples.
+MAX_AUTO_GRID = 256
+
+
+def auto_grid_count(box: SceneBox, voxel: float = DEFAULT_VOXEL_M) -> int:
+    """Voxels along the longest axis of ``box`` so that voxels are at most ``voxel`` m (8..256)."""
+    return int(min(MAX_AUTO_GRID, max(8, np.ceil(float(np.max(box.size)) / voxel - 1e-9))))
+
 
 @dataclasses.dataclass(frozen=True)
 class Grid:

@@ -128,7 +128,14 @@ def evaluate_target(target: str | Path, gt: str, box: str | None = None) -> dict
                 d = read_point_cloud_ply(pc)
                 pts = np.stack([d["x"], d["y"], d["z"]], 1)
             msh = trimesh.load(mesh, process=False, force="mesh") if mesh.exists() else None
-            out[m] = score_reconstruction(pts, msh, truth)
+            vol = target / f"{m}_volume.npy"
+            fixed = None
+            if vol.exists():  # the paper's fixed level needs the volume, not the thresholded cloud
+                from ..export import read_volume_npy
+                from ..extract import PAPER_TAU, point_cloud
+
+                fixed = point_cloud(read_volume_npy(vol), PAPER_TAU).points
+            out[m] = score_reconstruction(pts, msh, truth, fixed)
     else:
         pts, msh = _load_target(target)
         out[target.stem] = score_reconstruction(pts, msh, truth)

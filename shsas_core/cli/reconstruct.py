@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
 def print_result(result) -> None:
     """The metrics table (when there are metrics) and where the outputs are."""
     con = console()
-    if any(k.startswith(("pc_", "mesh_")) for m in result.metrics.values() for k in m):
+    if any(k.startswith(("pc_", "fixed_", "mesh_")) for m in result.metrics.values() for k in m):
         con.print(metrics_table(result.metrics))
     else:
         con.print("no ground truth in the survey: no geometry metrics")
@@ -125,7 +125,7 @@ def metrics_table(metrics: Mapping[str, Mapping[str, float]], title: str = "metr
     """A rich table: one row per method and output (point cloud, mesh)."""
     from rich.table import Table
 
-    from ..report import TABLE_COLUMNS
+    from ..report import OUTPUT_ROWS, TABLE_COLUMNS
 
     table = Table(title=title)
     table.add_column("method")
@@ -133,7 +133,7 @@ def metrics_table(metrics: Mapping[str, Mapping[str, float]], title: str = "metr
     for _, head, _ in TABLE_COLUMNS:
         table.add_column(head, justify="right")
     for method, m in metrics.items():
-        for rep, label in (("pc", "point cloud"), ("mesh", "mesh")):
+        for rep, label in OUTPUT_ROWS:
             if not any(k.startswith(rep + "_") for k in m):
                 continue
             cells = []
