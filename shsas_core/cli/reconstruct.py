@@ -12,33 +12,55 @@ from ..errors import ShsasError
 METHOD_HELP = "comma-separated: backprojection, reed (isotropic neural, SH degree 0), shsas (SH degree --sh-degree)"
 
 
+def _default(field: str) -> str:
+    """``(default X)`` from the spec itself, so the help cannot disagree with what runs."""
+    from ..spec import ReconstructionSpec
+
+    return f"(default {ReconstructionSpec.model_fields[field].default})"
+
+
 def add_spec_options(p: argparse.ArgumentParser) -> None:
     """Options that map one-to-one onto :class:`~shsas_core.spec.ReconstructionSpec` fields."""
+    from ..spec import PRESETS
+
     g = p.add_argument_group("reconstruction spec (defaults: shsas_core.spec.ReconstructionSpec)")
+    g.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                   help="start from a named setting: default (the best measured on a CPU) or paper "
+                   "(the paper's: empty start, 200 bins x 4,800 rays, paper_gpu encoding, 50k "
+                   "iterations; needs a GPU); other options override it")
     g.add_argument("--methods", default=None, help=METHOD_HELP + " (default: all three)")
-    g.add_argument("--sh-degree", type=int, default=None, metavar="L", help="SH degree of method shsas, 0-3 (default 3)")
-    g.add_argument("--iters", type=int, default=None, help="training iterations per neural method (default 1500)")
-    g.add_argument("--grid", type=int, default=None, help="voxels along the longest scene-box axis (default 64)")
-    g.add_argument("--device", default=None, help="auto, cpu, cuda or cuda:N (default auto)")
+    g.add_argument("--sh-degree", type=int, default=None, metavar="L",
+                   help=f"SH degree of method shsas, 0-3 {_default('sh_degree')}")
+    g.add_argument("--iters", type=int, default=None,
+                   help=f"training iterations per neural method {_default('iters')}")
+    g.add_argument("--grid", type=int, default=None,
+                   help="voxels along the longest scene-box axis (default: voxels of at most 2.5 mm)")
+    g.add_argument("--device", default=None, help=f"auto, cpu, cuda or cuda:N {_default('device')}")
     g.add_argument("--threshold", type=float, default=None, metavar="TAU",
                    help="iso level on the [0,1]-normalised magnitude (default: Otsu rule, see docs/usage.md)")
     g.add_argument("--deconv", choices=["wiener", "neural", "none"], default=None,
-                   help="pulse deconvolution (default wiener)")
-    g.add_argument("--seed", type=int, default=None, help="seed of everything random (default 0)")
-    g.add_argument("--bins", type=int, default=None, help="range bins rendered per ping per iteration (default 64)")
-    g.add_argument("--rays", type=int, default=None, help="rays per ping per iteration (default 1024)")
-    g.add_argument("--pings-per-batch", type=int, default=None, help="pings per training iteration (default 1)")
-    g.add_argument("--lr", type=float, default=None, help="Adam learning rate of the neural methods (default 1e-3)")
+                   help=f"pulse deconvolution {_default('deconvolution')}")
+    g.add_argument("--seed", type=int, default=None, help=f"seed of everything random {_default('seed')}")
+    g.add_argument("--bins", type=int, default=None,
+                   help=f"range bins rendered per ping per iteration {_default('num_bins')}")
+    g.add_argument("--rays", type=int, default=None, help=f"rays per ping per iteration {_default('num_rays')}")
+    g.add_argument("--pings-per-batch", type=int, default=None,
+                   help=f"pings per training iteration {_default('pings_per_batch')}")
+    g.add_argument("--lr", type=float, default=None,
+                   help=f"Adam learning rate of the neural methods {_default('lr')}")
     g.add_argument("--lr-final", type=float, default=None,
                    help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
+    g.add_argument("--init", choices=["backprojection", "none"], default=None,
+                   help="start of the neural methods: backprojection = distil the backprojection image "
+                   f"into the field first, none = the paper's empty field {_default('init')}")
     g.add_argument("--encoding", choices=["cpu", "small", "paper_gpu"], default=None,
-                   help="hash-encoding preset: cpu (default), small (fastest, short CPU runs), paper_gpu")
+                   help="hash-encoding preset: cpu, small (fastest, short CPU runs), paper_gpu "
+                   f"{_default('encoding')}")
     g.add_argument("--target", choices=["coherent", "envelope"], default=None,
-                   help="data term of the neural methods: coherent = complex s_PD as in the paper "
-                   "(reconstruct's default), envelope = |s_PD| (converges at CPU budgets; the "
-                   "demo's default; see docs/neural.md)")
+                   help="data term of the neural methods: coherent = complex s_PD as in the paper, "
+                   f"envelope = |s_PD| (see docs/neural.md) {_default('target')}")
     g.add_argument("--holdout", type=float, default=None, metavar="FRACTION",
-                   help="share of pings held out for novel-view signal errors (default 0)")
+                   help=f"share of pings held out for novel-view signal errors {_default('holdout_fraction')}")
 
 
 def spec_from_args(args: argparse.Namespace, **defaults: object):
@@ -51,8 +73,11 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
               "device": "device", "threshold": "threshold", "deconv": "deconvolution", "seed": "seed",
               "bins": "num_bins", "rays": "num_rays", "pings_per_batch": "pings_per_batch",
               "holdout": "holdout_fraction", "lr": "lr", "lr_final": "lr_final", "encoding": "encoding",
-              "target": "target"}
+              "target": "target", "init": "init"}
+    from ..spec import PRESETS
+
     kw: dict[str, object] = dict(defaults)
+    kw.update(PRESETS[getattr(args, "preset", None) or "default"])
     for opt, field in fields.items():
         v = getattr(args, opt, None)
         if v is not None:

@@ -77,12 +77,49 @@ def test_demo_tiny(tmp_path, capsys, monkeypatch):
     assert (out / "survey.h5").is_file()
 
 
-def test_demo_defaults_are_a_valid_spec():
-    import argparse
-
-    from shsas_core.cli.demo import DEMO_SPEC
+def test_demo_and_reconstruct_run_the_one_default_spec():
+    """`shsas demo` and `shsas reconstruct` with no options run ReconstructionSpec() itself."""
+    from shsas_core.cli import build_parser
     from shsas_core.cli.reconstruct import spec_from_args
+    from shsas_core.spec import ReconstructionSpec
 
-    spec = spec_from_args(argparse.Namespace(), **DEMO_SPEC)
-    assert spec.methods == ["backprojection", "reed", "shsas"] and spec.sh_degree == 3
-    assert spec_from_args(argparse.Namespace(iters=7), **DEMO_SPEC).iters == 7  # options win
+    parser = build_parser()
+    for argv in (["demo"], ["reconstruct", "x.h5", "--out", "o"]):
+        assert spec_from_args(parser.parse_args(argv)) == ReconstructionSpec()
+    assert spec_from_args(parser.parse_args(["demo", "--iters", "7"])).iters == 7  # options win
+
+
+def test_paper_preset_is_one_flag_away():
+    from shsas_core.cli import build_parser
+    from shsas_core.cli.reconstruct import spec_from_args
+    from shsas_core.spec import PAPER_SETTINGS, ReconstructionSpec
+
+    parser = build_parser()
+    spec = spec_from_args(parser.parse_args(["reconstruct", "x.h5", "--out", "o", "--preset", "paper"]))
+    assert spec == ReconstructionSpec(**PAPER_SETTINGS)
+    spec = spec_from_args(parser.parse_args(["reconstruct", "x.h5", "--out", "o", "--preset", "paper",
+                                             "--iters", "9"]))
+    assert spec.iters == 9 and spec.init == "none"
+
+
+def test_help_reports_the_spec_defaults():
+    """The CLI's help text takes each default from the spec, so the two cannot disagree."""
+    from shsas_core.cli import build_parser
+    from shsas_core.spec import ReconstructionSpec
+
+    text = " ".join(_help(build_parser(), "reconstruct").split())
+    text = text.split("reconstruction spec (defaults", 1)[1]  # the options' section, not the usage
+    d = ReconstructionSpec()
+    for opt, value in (("--iters", d.iters), ("--lr", d.lr), ("--bins", d.num_bins), ("--rays", d.num_rays),
+                       ("--init", d.init), ("--target", d.target)):
+        assert f"(default {value})" in text.split(opt, 1)[1].split(" --", 1)[0], opt
+
+
+def _help(parser, command: str) -> str:
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.suppress(SystemExit):
+        parser.parse_args([command, "--help"])
+    return buf.getvalue()
