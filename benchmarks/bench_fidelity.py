@@ -350,17 +350,8 @@ def forget(record_path: Path, method: str) -> None:
         write_json(record, record_path)
 
 
-def run_job(job: Job, methods: list[str], spec: ReconstructionSpec, device: str, args: argparse.Namespace,
-            profile_dir: Path, machine: dict[str, Any], code: str) -> bool:
-    """Run the methods of one cell and update its result.json; False when a run raised."""
-    from shsas_core.pipeline import run
-
-    cache = cache_dir(args.cache_dir)
-    source = scene_source(job.scene, mesh_dir(args.meshes))
-    sim, key = cached_survey(job.scene, source, job.regime.simulation_config(job.seed), cache)
-    survey = job.regime.select(sim)
-    folder = job.folder(profile_dir)
-    record_path = folder / "result.json"
+def survey_header(job: Job, sim: Survey, survey: Survey, key: str, source: str, cache: Path) -> dict[str, Any]:
+    """What result.json says about the cell's survey (and, with a lobe, its energy share)."""
     header: dict[str, Any] = {
         "scene": job.scene, "regime": job.regime.name, "seed": job.seed,
         "regime_description": job.regime.description,
@@ -370,36 +361,59 @@ def run_job(job: Job, methods: list[str], spec: ReconstructionSpec, device: str,
     if job.regime.specular_weight > 0:
         lambertian, _ = cached_survey(job.scene, source, REGIMES["dense"].simulation_config(job.seed), cache)
         header["survey"]["lobe_energy_ratio"] = lobe_energy_ratio(sim, lambertian)
+    return header
+
+
+def is_current(entry: dict[str, Any], code: str, key: str, spec: ReconstructionSpec) -> bool:
+    """Whether a stored entry measured this code (known), survey and spec without error."""
+    return (bool(code) and entry.get("code") == code and entry.get("survey_key") == key
+            and "error" not in entry and spec_key(entry.get("spec", {})) == spec_key(spec))
+
+
+def measure(method: str, spec: ReconstructionSpec, survey: Survey, out: Path, tag: str) -> dict[str, Any]:
+    """One pipeline run: the entry's metrics and times, or its error."""
+    from shsas_core.pipeline import run
+
+    print(f"  {tag}: {survey.num_pings} pings ...", flush=True)
+    t = time.perf_counter()
+    try:
+        res = run(spec, survey, out)
+    except Exception as exc:  # one failed cell must not end a suite of hours
+        error = f"{type(exc).__name__}: {exc}"[:500]
+        print(f"  {tag}: ERROR {error}", flush=True)
+        return {"error": error}
+    metrics = res.metrics[method]
+    print(f"  {tag}: {metrics['seconds']:.1f} s, pc F1 {_fmt(metrics.get('pc_f1'), '{:.3f}')}, "
+          f"Chamfer-L2 {_fmt(metrics.get('pc_chamfer_l2'), '{:.2e}')}", flush=True)
+    return {"metrics": {k: _finite(v) for k, v in metrics.items()}, "seconds": metrics["seconds"],
+            "pipeline_wall_s": time.perf_counter() - t, "timings": res.timings}
+
+
+def run_job(job: Job, methods: list[str], spec: ReconstructionSpec, device: str, args: argparse.Namespace,
+            profile_dir: Path, machine: dict[str, Any], code: str) -> bool:
+    """Run the methods of one cell and update its result.json; False when a run raised."""
+    cache = cache_dir(args.cache_dir)
+    source = scene_source(job.scene, mesh_dir(args.meshes))
+    sim, key = cached_survey(job.scene, source, job.regime.simulation_config(job.seed), cache)
+    survey = job.regime.select(sim)
+    folder = job.folder(profile_dir)
+    record_path = folder / "result.json"
+    header = survey_header(job, sim, survey, key, source, cache)
     ok = True
     for method in methods:
         run_spec = spec.model_copy(update={"methods": [method], "seed": job.seed, "device": device})
         old = read_record(record_path).get("methods", {}).get(method, {})
         tag = f"{job.regime.name}/{job.scene}/seed{job.seed}/{method}"
-        if (not args.fresh and code and old.get("code") == code and old.get("survey_key") == key
-                and "error" not in old and spec_key(old.get("spec", {})) == spec_key(run_spec)):
+        if not args.fresh and is_current(old, code, key, run_spec):
             print(f"  {tag}: already measured at {code} (--fresh re-measures)", flush=True)
             continue
-        out = folder / method
         if old or args.fresh:  # another code/spec/survey: start clean, not from its checkpoints
             forget(record_path, method)  # its artifacts go now, so its entry must too
-            shutil.rmtree(out, ignore_errors=True)
-        print(f"  {tag}: {survey.num_pings} pings ...", flush=True)
+            shutil.rmtree(folder / method, ignore_errors=True)
         entry: dict[str, Any] = {"spec": run_spec.model_dump(mode="json"), "code": code, "survey_key": key,
                                  "machine": {**machine, "load_avg_before": list(os.getloadavg())}}
-        t = time.perf_counter()
-        try:
-            res = run(run_spec, survey, out)
-        except Exception as exc:  # one failed cell must not end a suite of hours
-            entry["error"] = f"{type(exc).__name__}: {exc}"[:500]
-            ok = False
-            print(f"  {tag}: ERROR {entry['error']}", flush=True)
-        else:
-            metrics = res.metrics[method]
-            entry.update({"metrics": {k: _finite(v) for k, v in metrics.items()},
-                          "seconds": metrics["seconds"], "pipeline_wall_s": time.perf_counter() - t,
-                          "timings": res.timings})
-            print(f"  {tag}: {metrics['seconds']:.1f} s, pc F1 {_fmt(metrics.get('pc_f1'), '{:.3f}')}, "
-                  f"Chamfer-L2 {_fmt(metrics.get('pc_chamfer_l2'), '{:.2e}')}", flush=True)
+        entry.update(measure(method, run_spec, survey, folder / method, tag))
+        ok &= "error" not in entry
         entry["finished"] = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
         # read again just before writing: another invocation may have added a method meanwhile;
         # written after every method, so an interrupted suite keeps what it finished
