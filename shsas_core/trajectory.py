@@ -154,3 +154,48 @@ def make_trajectory(cfg: TrajectoryConfig) -> tuple[np.ndarray, np.ndarray, np.n
     if len(idx) == 0:
         raise ShsasError("the ping subset is empty")
     return tx[idx], rx[idx], idx
+
+
+def azimuth_deg(positions: np.ndarray, center: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """Azimuth of each position about the vertical axis through ``center``, degrees in [0, 360).
+
+    Measured counter-clockwise from +x (the circular trajectory's convention: its first ping
+    at ``angle_start_deg = 0`` lies on +x). Rounded to 1e-9 degrees first, so that a ping
+    meant to lie on a whole angle (0°, 180°) is not moved across it by sine/cosine round-off
+    (``0.85·sin(π)`` is 1e-16, not 0). A position on the axis has azimuth 0.
+
+    Args:
+        positions: (N, 3) or (N, 2) positions, m (only x and y are used).
+        center: (x, y) of the axis, m.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    az = np.degrees(np.arctan2(p[:, 1] - center[1], p[:, 0] - center[0]))
+    return np.mod(np.round(az, 9), 360.0)
+
+
+def azimuth_arc_indices(positions: np.ndarray, start_deg: float, stop_deg: float,
+                        center: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """Indices (sorted, int64) of the positions whose azimuth lies in the arc [start, stop).
+
+    A limited-aperture survey keeps only the pings whose transmitter is on part of the circle,
+    e.g. ``survey.subset(azimuth_arc_indices(survey.tx, 0, 180))`` keeps a half turn of the
+    turntable. The arc is half-open and runs counter-clockwise from ``start_deg``; it may wrap
+    through 0° by giving ``stop_deg`` above 360 (``[270, 450)`` is the half circle through +x).
+
+    Args:
+        positions: (N, 3) or (N, 2) positions, m.
+        start_deg, stop_deg: arc ends, degrees (see :func:`azimuth_deg` for the convention);
+            ``0 < stop_deg - start_deg <= 360``.
+        center: (x, y) of the vertical axis, m.
+
+    Raises:
+        ValueError: for an empty or over-full arc.
+    """
+    width = float(stop_deg) - float(start_deg)
+    if not 0.0 < width <= 360.0:
+        raise ValueError(f"arc [{start_deg}, {stop_deg}) must span more than 0 and at most 360 degrees")
+    n = len(np.asarray(positions))
+    if width == 360.0:  # np.mod of a tiny negative offset rounds to 360.0, which `<` would drop
+        return np.arange(n, dtype=np.int64)
+    offset = np.mod(azimuth_deg(positions, center) - float(start_deg), 360.0)
+    return np.flatnonzero(offset < width).astype(np.int64)
