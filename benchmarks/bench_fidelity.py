@@ -94,23 +94,12 @@ from shsas_core.simulate import (  # noqa: E402
     TrajectoryConfig,
     config_summary,
 )
-from shsas_core.spec import METHODS, ReconstructionSpec  # noqa: E402
+from shsas_core.spec import METHODS, PAPER_SETTINGS, ReconstructionSpec  # noqa: E402
 from shsas_core.survey import Survey  # noqa: E402
 from shsas_core.trajectory import azimuth_arc_indices  # noqa: E402
 
-# The paper's settings row (``--paper``). TODO(lead): point this at the ReconstructionSpec preset
-# once it exists; until then it is a plain override of the spec defaults. Iterations: the paper
-# trains SH-SAS for 50,000 iterations on simulated data (Reed et al.: 100,000; the spec has one
-# count for both), Adam at a fixed lr of 1e-3, 200 bins x ~4,800 rays per ping, coherent s_PD.
-PAPER_OVERRIDES: dict[str, Any] = {
-    "target": "coherent",
-    "lr": 1e-3,
-    "lr_final": None,
-    "encoding": "paper_gpu",
-    "num_bins": 200,
-    "num_rays": 4800,
-    "iters": 50_000,
-}
+#: The paper's row: the spec's own preset (declared once in shsas_core.spec).
+PAPER_OVERRIDES: dict[str, Any] = PAPER_SETTINGS
 
 SCENES: tuple[str, ...] = ("bunny", "armadillo", "sphere", "cube")
 #: Scenes read from the shared mesh folder; the others are built-in shapes (shapes.SHAPES).
