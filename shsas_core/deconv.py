@@ -241,3 +241,44 @@ def deconvolve(
                               taper_param=config.taper_param)
         return out
     raise ShsasError(f"deconvolution: unknown method '{config.method}' (use wiener, neural or none)")
+
+
+def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width: int = 8) -> np.ndarray | None:
+    """The deconvolved signal of an ideal point echo: what :func:`deconvolve` makes of a unit
+    reflector at a whole-sample delay, as a kernel on the sample grid.
+
+    The replica is placed ``half_width`` samples into an empty record and run through the same
+    chain (Wiener filter, or the neural method's band projection, whose target is an impulse), so
+    the kernel is the chain's, not a model of it. For baseband surveys the kernel is returned in
+    the analytic passband frame the renderer trains in (carrier restored per lag).
+
+    Args:
+        survey: pulse, sample rate and signal kind. config: the deconvolution used on the data.
+        half_width: ``h``; the kernel has ``2h + 1`` taps (lags -h..h samples).
+    Returns:
+        (2h + 1,) complex128 with unit value at lag 0 (index h), or None for ``method="none"``
+        (the raw echo is a whole chirp, not a compact kernel).
+    """
+    cfg = config or DeconvConfig()
+    if cfg.method == "none":
+        return None
+    rep = replica_in_frame(survey)
+    n = rep.size + 4 * half_width + 1
+    lo, hi = signal_band(survey)
+    if cfg.method == "wiener":
+        frame = np.zeros((1, n), np.complex128)
+        frame[0, half_width : half_width + rep.size] = rep
+        out = wiener_deconvolve(frame, rep, survey.meta.fs, (lo, hi), noise_level=cfg.noise_level,
+                                taper=cfg.taper, taper_param=cfg.taper_param)[0]
+    else:  # the neural deconvolution's target is an impulse, projected onto the band
+        frame = np.zeros((1, n), np.complex128)
+        frame[0, half_width] = 1.0
+        out = band_filter(frame, survey.meta.fs, (lo, hi), taper=cfg.taper, taper_param=cfg.taper_param)[0]
+    k = out[: 2 * half_width + 1].astype(np.complex128)
+    if not abs(k[half_width]) > 0:
+        raise ShsasError("deconvolution: the point-spread kernel is zero at lag 0")
+    k = k / k[half_width]
+    if survey.meta.signal_kind == "baseband":
+        lags = np.arange(-half_width, half_width + 1) / survey.meta.fs
+        k = k * np.exp(2j * np.pi * float(survey.meta.carrier_hz) * lags)
+    return k

@@ -112,6 +112,8 @@ class TrainConfig(BaseModel):
     tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms")
     reg_start: int = Field(0, ge=0, description="iteration from which λ2..λ5 apply")
     learn_amplitude: bool = Field(True, description="learn the global scale A (else fixed at its init)")
+    psf_window: int = Field(64, ge=1, le=4096, description="with a point-spread kernel (fit's psf): "
+                            "contiguous target bins per ping and iteration (replaces num_bins)")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     progressive_sh_every: int | None = Field(
         None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
@@ -275,6 +277,47 @@ def _set_active_degree(field: torch.nn.Module, degree: int | None) -> None:
     field._shsas_progressive_hook = field.linears[-1].register_forward_hook(hook)
 
 
+def _psf_batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, half: int, device, dtype):
+    """One contiguous window of ``psf_window`` target bins per ping (its centre drawn by the bin
+    sampler's pdf) and the ``2 half`` bins around it that the kernel reaches: the rendered bins.
+
+    Returns pings, geometry, radii (B, W + 2 half) of the rendered bins, targets (B, W).
+    """
+    n_train = len(data.pings)
+    b = min(cfg.pings_per_batch, n_train)
+    pick = torch.randperm(n_train, generator=it_gen)[:b].numpy()
+    pings = np.sort(data.pings[pick])
+    valid = data.valid[pings]
+    centre, _pdf = sample_bins(data.magnitude[pings], valid, 1, cfg.uniform_fraction, it_gen)
+    n_t = valid.shape[1]
+    w = min(cfg.psf_window, n_t)
+    first = valid.to(torch.int64).argmax(dim=1)
+    last = n_t - 1 - valid.flip(1).to(torch.int64).argmax(dim=1)
+    start = (centre[:, 0] - w // 2).clamp(min=first, max=(last - w + 1).clamp_min(first)).clamp(0, n_t - w)
+    cols = start[:, None] + torch.arange(w)[None, :]
+    target = data.signals[torch.as_tensor(pings)[:, None], cols].to(device)
+    rend = start[:, None] - half + torch.arange(w + 2 * half)[None, :]
+    meta = survey.meta
+    r = meta.sound_speed * (data.t0[pings][:, None] + rend.numpy() / meta.fs)  # same formula as bin_radii
+    radii = torch.as_tensor(r, dtype=dtype, device=device)
+    geom = ping_geometry(survey, pings, device, dtype, cfg.render.beamwidth_deg)
+    return pings, geom, radii, target
+
+
+def convolve_psf(signal: torch.Tensor, psf: torch.Tensor) -> torch.Tensor:
+    """``out[k] = Σ_j psf[j] signal[k + 2h - j]`` over the bins where the kernel fits ("valid").
+
+    Args:
+        signal: (B, R) complex rendered impulse response on contiguous bins.
+        psf: (2h + 1,) complex kernel, psf[h] at lag 0.
+    Returns:
+        (B, R - 2h) complex: what the deconvolved data would show at bins h .. R - h - 1.
+    """
+    taps = psf.numel()
+    win = signal.unfold(-1, taps, 1)  # (B, R - 2h, taps): win[k, i] = signal[k + i]
+    return win @ psf.flip(0).to(signal.dtype)
+
+
 def _render_batch(field, amp_mod, geom: PingGeometry, radii, cfg: TrainConfig, gen, create_graph=True):
     rcfg = cfg.render_config()
     dirs, omega = cone_directions(geom.axis, geom.half_angle, rcfg.num_rays, gen, jitter=True)
@@ -316,13 +359,25 @@ def _regularisers(field, out: dict, geom: PingGeometry, cfg: TrainConfig, gen: t
     return terms
 
 
+def _predict(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, gen: torch.Generator, device,
+             dtype, psf: torch.Tensor | None, create_graph: bool = True):
+    """Render one batch: (renderer outputs, ping geometry, predicted samples A·ŝ (B, K), measured
+    samples (B, K))."""
+    if psf is None:
+        _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
+        out = _render_batch(field, amp_mod, geom, radii, cfg, gen, create_graph)
+        return out, geom, out["signal"].to(target.dtype), target
+    half = (psf.numel() - 1) // 2
+    _pings, geom, radii, target = _psf_batch(data, survey, gen, cfg, half, device, dtype)
+    out = _render_batch(field, amp_mod, geom, radii, cfg, gen, create_graph)
+    return out, geom, convolve_psf(out["signal"].to(target.dtype), psf), target
+
+
 def _iteration_loss(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, it: int, device, dtype,
-                    tv_delta: float) -> tuple[torch.Tensor, torch.Tensor]:
+                    tv_delta: float, psf: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Composite loss and data term of iteration ``it`` (every draw seeded by ``(seed, it)``)."""
     gen = _generator(cfg.seed, it)
-    _pings, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
-    out = _render_batch(field, amp_mod, geom, radii, cfg, gen)
-    pred = out["signal"].to(target.dtype)
+    out, geom, pred, target = _predict(field, amp_mod, data, survey, cfg, gen, device, dtype, psf)
     data_loss = (pred - target).abs().pow(2).mean() / data.energy
     w = cfg.weights
     loss = w.tof * data_loss
@@ -363,7 +418,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
 def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig | None = None,
         progress: ProgressFn | None = None, should_stop: StopFn | None = None,
         checkpoint_dir: str | Path | None = None, ping_indices: Sequence[int] | None = None,
-        stage: str = "fit") -> FitResult:
+        stage: str = "fit", psf: np.ndarray | None = None) -> FitResult:
     """Train ``field`` so that rendered pings match ``signals``.
 
     Args:
@@ -379,6 +434,10 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             and at the end; if it already holds a compatible checkpoint, training resumes from it.
         ping_indices: training pings (default all); hold the rest out for novel views.
         stage: stage name reported to ``progress``.
+        psf: (2h + 1,) complex point-spread kernel of the deconvolved data (``psf[h]`` at lag 0,
+            :func:`~shsas_core.deconv.point_spread`). When given, the rendered impulse response
+            of contiguous bins is convolved with it before it is compared with the data, so a thin
+            surface explains a PSF-wide echo (``cfg.psf_window`` target bins per ping).
 
     Returns:
         :class:`FitResult`.
@@ -402,6 +461,13 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     box = survey.meta.scene_box
     tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
     fp = _fingerprint(cfg, field, data)
+    psf_t = None
+    if psf is not None:
+        k = np.asarray(psf, dtype=np.complex128).ravel()
+        if k.size % 2 != 1 or not np.all(np.isfinite(k)):
+            raise ShsasError(f"fit: psf must be a finite kernel of odd length, got {k.size} taps")
+        psf_t = torch.as_tensor(k.astype(np.complex64), device=device)
+        fp["psf"] = [[float(v.real), float(v.imag)] for v in k]
 
     ckpt_path = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
     loss_hist: list[float] = []
@@ -437,7 +503,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                       "field_config": fp["field"]}, ckpt_path)
 
     if start == 0:
-        _init_amplitude(field, amp_mod, data, survey, cfg, device, dtype)
+        _init_amplitude(field, amp_mod, data, survey, cfg, device, dtype, psf_t)
     it_done = start
     t_loop = time.perf_counter()
     with heap_cache(cfg.heap_cache and device.type == "cpu"):
@@ -449,7 +515,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
-                loss, data_loss = _iteration_loss(field, amp_mod, data, survey, cfg, it, device, dtype, tv_delta)
+                loss, data_loss = _iteration_loss(field, amp_mod, data, survey, cfg, it, device, dtype, tv_delta,
+                                                  psf_t)
                 loss_value = float(loss.detach())
                 if not math.isfinite(loss_value):
                     # nothing is stepped or saved: the last checkpoint stays the last good state
@@ -522,17 +589,17 @@ def _scheduled_lr(cfg: TrainConfig, it: int) -> float:
 
 
 def _init_amplitude(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, device, dtype,
-                    batches: int = 8) -> None:
+                    psf: torch.Tensor | None = None, batches: int = 8) -> None:
     """Closed-form start for A: ‖s‖ / ‖ŝ‖ summed over ``batches`` seeded batches (streams
     1..batches of iteration 0), so one unusual view does not set the scale for all."""
     num = den = 0.0
     for j in range(batches):
         gen = _generator(cfg.seed, 0, stream=1 + j)
-        _p, geom, radii, target = _batch(data, survey, gen, cfg, device, dtype)
         with torch.enable_grad():
-            out = _render_batch(field, amp_mod, geom, radii, cfg, gen, create_graph=False)
+            _out, _geom, pred, target = _predict(field, amp_mod, data, survey, cfg, gen, device, dtype, psf,
+                                          create_graph=False)
         num += float(target.abs().pow(2).sum())
-        den += float(out["signal"].detach().abs().pow(2).sum())
+        den += float((pred.detach() / amp_mod().detach().to(pred.real.dtype)).abs().pow(2).sum())
     num, den = math.sqrt(num), math.sqrt(den)
     if den > 0 and num > 0 and math.isfinite(num / den):
         with torch.no_grad():
