@@ -190,3 +190,94 @@ def test_surface_concentration_matches_the_analytic_sphere_sets():
     assert surface_concentration(flat, sphere.vertices, sphere.faces, shell=shell) == pytest.approx(1.0)
     with pytest.raises(ShsasError, match="voxel diagonal"):
         surface_concentration(vol, sphere.vertices, sphere.faces, shell=0.001)
+
+
+# --------------------------------------------------------------------------------------------
+# the ground-truth band search (within_distance_of_mesh): exact against brute force, and local
+def _brute_distances(p, v, f):
+    """(P, F) exact point-triangle distances, every point against every triangle."""
+    tri = np.asarray(v, float)[np.asarray(f)]
+    pi, ti = np.repeat(np.arange(len(p)), len(f)), np.tile(np.arange(len(f)), len(p))
+    return point_triangle_distance(p[pi], tri[ti, 0], tri[ti, 1], tri[ti, 2]).reshape(len(p), len(f))
+
+
+def _soup_with_slivers(rng, n):
+    """``n`` random triangles in a 10 cm cube: a third ordinary, a third slivers (up to 15 cm
+    long, 1 µm-1 mm wide) and some degenerate (repeated corner, collinear, a single point)."""
+    tris = []
+    for k in range(n):
+        a = rng.uniform(0, 0.1, 3)
+        kind = k % 3
+        if kind == 0:
+            b, c = a + rng.normal(0, 0.02, 3), a + rng.normal(0, 0.02, 3)
+        else:
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            side = np.cross(d, rng.normal(size=3))
+            side /= np.linalg.norm(side)
+            long = rng.uniform(0.03, 0.15)
+            b = a + long * d
+            c = a + rng.uniform(0.2, 1.0) * long * d + 10 ** rng.uniform(-6, -3) * side
+        tris.append([a, b, c])
+    tris += [[a, a, a + 0.01], [a, a + 0.02, a + 0.04], [a + 0.003, a + 0.003, a + 0.003]]
+    v = np.asarray(tris, float).reshape(-1, 3)
+    return v, np.arange(len(v)).reshape(-1, 3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_within_distance_matches_brute_force_on_slivers_and_degenerate_triangles(seed):
+    from shsas_core.metrics import mesh_candidate_pairs
+    from shsas_core.metrics_reference import reference_within_distance_of_mesh
+
+    rng = np.random.default_rng(seed)
+    v, f = _soup_with_slivers(rng, 30)
+    on = sample_surface(v, f, 300, seed=seed)
+    p = np.concatenate([rng.uniform(-0.05, 0.15, (1500, 3)), v, on,
+                        on + rng.normal(size=on.shape) * 0.004])  # vertices, on and near the surface
+    d = _brute_distances(p, v, f)
+    for radius in (0.0, 0.002, 0.01, 0.04):
+        want = d.min(1) <= radius
+        got = within_distance_of_mesh(p, v, f, radius)
+        np.testing.assert_array_equal(got, want, err_msg=f"radius {radius}")
+        np.testing.assert_array_equal(reference_within_distance_of_mesh(p, v, f, radius), want)
+        # small batches cut the search into many pieces: same answer
+        np.testing.assert_array_equal(within_distance_of_mesh(p, v, f, radius, batch=50), want)
+        # every pair within radius is a candidate, each once
+        pi, ti = mesh_candidate_pairs(p, v, f, radius)
+        assert len(np.unique(pi * len(f) + ti)) == len(pi)
+        need = np.flatnonzero((d <= radius).ravel())
+        assert np.isin(need, pi * len(f) + ti).all(), f"radius {radius}"
+    # the mesh vertices (rows 1500 on) are at distance 0
+    assert within_distance_of_mesh(p, v, f, 0.0)[1500:1500 + len(v)].all()
+
+
+def test_within_distance_equals_reference_on_a_sliver_cone_grid():
+    from shsas_core.metrics_reference import reference_within_distance_of_mesh
+
+    # the ground truth's use: voxel centres within one voxel, where exact ties are likely
+    m = trimesh.creation.cone(radius=0.04, height=0.12, sections=96)
+    grid = OccupancyGrid(SceneBox(min=(-0.06, -0.06, -0.02), max=(0.06, 0.06, 0.14)), 0.008)
+    c = grid.centres()
+    got = within_distance_of_mesh(c, m.vertices, m.faces, grid.voxel)
+    np.testing.assert_array_equal(got, reference_within_distance_of_mesh(c, m.vertices, m.faces, grid.voxel))
+    assert 0 < got.sum() < len(c)
+
+
+def test_band_search_on_slivers_measures_only_nearby_triangles():
+    """Issue 12: on a cone of long thin triangles, the old rule (every lookup at the largest
+    triangle's radius) paired ~every voxel with ~every triangle. The per-triangle search only
+    pairs a point with triangles within radius + 2 cells (3 radius) of it."""
+    from shsas_core.metrics import mesh_candidate_pairs
+    from shsas_core.metrics_reference import reference_candidate_count
+
+    m = trimesh.creation.cone(radius=0.04, height=0.12, sections=512)  # 1,024 slivers
+    box = SceneBox(min=(-0.06, -0.06, -0.02), max=(0.06, 0.06, 0.14))
+    c = OccupancyGrid(box).centres()
+    radius = 0.005
+    pi, ti = mesh_candidate_pairs(c, m.vertices, m.faces, radius)
+    tri = m.vertices[m.faces]
+    d = point_triangle_distance(c[pi], tri[ti, 0], tri[ti, 1], tri[ti, 2])
+    assert d.max() <= 3 * radius
+    old = reference_candidate_count(c, m.vertices, m.faces, radius)
+    assert old > 0.6 * len(c) * len(m.faces)  # the old rule: nearly all pairs
+    assert len(pi) < 0.02 * old

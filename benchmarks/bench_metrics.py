@@ -1,0 +1,181 @@
+"""Ground-truth scoring: time and peak memory of ``GroundTruth`` construction, old vs new search.
+
+For each case, in the simulator's default scene box (mesh bounds + 2 cm) on 5 mm voxels, builds
+``metrics.GroundTruth`` (surface sample + occupancy; the occupancy's band test is the cost) with
+
+* ``reference``: the global-radius band search kept in :mod:`shsas_core.metrics_reference`
+  (every lookup uses the largest triangle's bounding radius), and
+* ``shsas``: :func:`shsas_core.metrics.within_distance_of_mesh` (per-triangle cells),
+
+each in a fresh subprocess, so that its peak RSS is its own, under an address-space cap
+(``--cap-gb``) so that a search that would exhaust a shared machine fails with MemoryError
+instead. Prints wall and CPU time, peak RSS, RSS before construction, the number of exact
+point-triangle candidates, and whether the occupancy equals the reference's bit for bit.
+
+Cases: ``bunny`` and ``armadillo`` (../shared/data/meshes, or ``--meshes DIR``), ``cone`` (a
+7,264-face trimesh cone, 5 cm radius, 15 cm high: 3,632 side slivers 15.8 cm long and 0.09 mm
+wide at the rim, and 3,632 base slivers 5 cm long) and ``cone-large`` (the same faces on an 8 cm
+radius, 20 cm high cone).
+
+    PYTHONPATH=. python benchmarks/bench_metrics.py [--cases bunny,armadillo,cone,cone-large]
+        [--algorithms reference,shsas] [--cap-gb 12] [--meshes DIR]
+
+Prints figures only; never asserts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+CASES = ("bunny", "armadillo", "cone", "cone-large")
+CONES = {"cone": (0.05, 0.15), "cone-large": (0.08, 0.20)}  # radius, height, m
+CONE_SECTIONS = 3632  # 7,264 faces, the size in issue 12
+
+
+def find_meshes(arg: str | None) -> Path:
+    here = ROOT
+    for c in ([Path(arg)] if arg else []) + [here.parent / "shared" / "data" / "meshes",
+                                            here / "shared" / "data" / "meshes",
+                                            Path(os.environ.get("SHSAS_SHARED", "shared")) / "data" / "meshes"]:
+        if (c / "bunny.obj").exists():
+            return c
+    sys.exit("bunny.obj not found: pass --meshes DIR")
+
+
+def load_case(case: str, meshes: Path):
+    """(vertices (V, 3) m, faces (F, 3)) of a case."""
+    import trimesh
+
+    from shsas_core.shapes import load_mesh
+
+    if case in CONES:
+        radius, height = CONES[case]
+        m = trimesh.creation.cone(radius=radius, height=height, sections=CONE_SECTIONS)
+    else:
+        m = load_mesh(meshes / f"{case}.obj")
+    return m.vertices, m.faces
+
+
+def rss_gb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1024**3
+
+
+def child(case: str, algorithm: str, cap_gb: float, meshes: Path) -> None:
+    """Build one GroundTruth and print one JSON line of figures."""
+    if cap_gb > 0:
+        cap = int(cap_gb * 1024**3)
+        resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+    import hashlib
+
+    import numpy as np
+
+    from shsas_core import metrics
+    from shsas_core.metrics_reference import (
+        reference_candidate_count,
+        reference_within_distance_of_mesh,
+    )
+    from shsas_core.simulate import default_scene_box
+
+    v, f = load_case(case, meshes)
+    box = default_scene_box(np.stack([v.min(0), v.max(0)]), 0.02)
+    if algorithm == "reference":
+        # GroundTruth -> OccupancyGrid.from_mesh looks the function up in the module at call time
+        metrics.within_distance_of_mesh = reference_within_distance_of_mesh
+    before = rss_gb()
+    t, c = time.perf_counter(), time.process_time()
+    try:
+        gt = metrics.GroundTruth(v, f, box)
+        status = "ok"
+    except MemoryError:
+        gt, status = None, f"MemoryError under the {cap_gb:g} GB cap"
+    wall, cpu = time.perf_counter() - t, time.process_time() - c
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2  # Linux: KiB
+    out = {"case": case, "algorithm": algorithm, "faces": len(f), "status": status, "wall_s": wall,
+           "cpu_s": cpu, "peak_gb": peak, "before_gb": before}
+    grid = metrics.OccupancyGrid(box)
+    out["grid_points"] = int(np.prod(grid.shape))
+    if gt is not None:
+        # counted after the peak was read: these do not change it
+        out["occupied"] = int(gt.occupancy.sum())
+        out["digest"] = hashlib.sha1(np.packbits(gt.occupancy)).hexdigest()
+        centres = grid.centres()
+        if algorithm == "reference":
+            out["candidates"] = reference_candidate_count(centres, v, f, grid.voxel)
+        else:
+            out["candidates"] = len(metrics.mesh_candidate_pairs(centres, v, f, grid.voxel)[0])
+    print(json.dumps(out), flush=True)
+
+
+def machine() -> str:
+    cpu = platform.processor() or "?"
+    try:
+        for line in subprocess.run(["lscpu"], capture_output=True, text=True).stdout.splitlines():
+            if line.startswith("Model name:"):
+                cpu = line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import numpy
+    import scipy
+
+    return (f"{os.cpu_count()} CPUs ({cpu}), Python {platform.python_version()}, numpy {numpy.__version__}, "
+            f"scipy {scipy.__version__}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", default="bunny,armadillo,cone", help=f"comma list of {', '.join(CASES)}")
+    ap.add_argument("--algorithms", default="reference,shsas")
+    ap.add_argument("--cap-gb", type=float, default=12.0, help="address-space cap per run, GB (0: none)")
+    ap.add_argument("--meshes", default=None, help="folder with bunny.obj and armadillo.obj")
+    ap.add_argument("--child", nargs=2, metavar=("CASE", "ALGORITHM"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    meshes = find_meshes(args.meshes)
+    if args.child:
+        child(args.child[0], args.child[1], args.cap_gb, meshes)
+        return
+    print(f"machine: {machine()}")
+    print(f"load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    print("GroundTruth construction, simulator scene box (bounds + 2 cm), 5 mm voxels; one fresh process per row")
+    head = ("case", "faces", "grid pts", "algorithm", "wall s", "CPU s", "peak RSS GB", "RSS before GB",
+            "candidates", "occupied", "same as reference")
+    print(" | ".join(head))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    for case in args.cases.split(","):
+        ref_digest = None
+        for algorithm in args.algorithms.split(","):
+            cmd = [sys.executable, __file__, "--child", case, algorithm, "--cap-gb", str(args.cap_gb),
+                   "--meshes", str(meshes)]
+            run = subprocess.run(cmd, capture_output=True, text=True, env=env)
+            lines = [ln for ln in run.stdout.splitlines() if ln.startswith("{")]
+            if run.returncode != 0 or not lines:
+                print(f"{case} | | | {algorithm} | failed (exit {run.returncode}): {run.stderr.strip()[-300:]}")
+                continue
+            r = json.loads(lines[-1])
+            if algorithm == "reference":
+                ref_digest = r.get("digest")
+            same = "—" if algorithm == "reference" or ref_digest is None or "digest" not in r else (
+                "yes" if r["digest"] == ref_digest else "NO")
+            if r["status"] != "ok":
+                print(f"{case} | {r['faces']} | {r['grid_points']} | {algorithm} | {r['status']} after "
+                      f"{r['wall_s']:.1f} s (CPU {r['cpu_s']:.1f} s, peak {r['peak_gb']:.2f} GB)")
+                continue
+            print(f"{case} | {r['faces']} | {r['grid_points']} | {algorithm} | {r['wall_s']:.2f} | {r['cpu_s']:.2f} | "
+                  f"{r['peak_gb']:.2f} | {r['before_gb']:.2f} | {r['candidates']:,} | {r['occupied']} | {same}",
+                  flush=True)
+    print(f"load average after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
+if __name__ == "__main__":
+    main()
