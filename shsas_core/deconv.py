@@ -263,18 +263,19 @@ def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width:
     if cfg.method == "none":
         return None
     rep = replica_in_frame(survey)
-    n = rep.size + 4 * half_width + 1
+    # a record as long as the survey's, so the FFT filters are sampled as they are on the data
+    n = max(survey.num_samples, rep.size + 4 * half_width + 1)
+    at = max(half_width, (n - rep.size) // 2)
     lo, hi = signal_band(survey)
+    frame = np.zeros((1, n), np.complex128)
     if cfg.method == "wiener":
-        frame = np.zeros((1, n), np.complex128)
-        frame[0, half_width : half_width + rep.size] = rep
+        frame[0, at : at + rep.size] = rep[: n - at]
         out = wiener_deconvolve(frame, rep, survey.meta.fs, (lo, hi), noise_level=cfg.noise_level,
                                 taper=cfg.taper, taper_param=cfg.taper_param)[0]
     else:  # the neural deconvolution's target is an impulse, projected onto the band
-        frame = np.zeros((1, n), np.complex128)
-        frame[0, half_width] = 1.0
+        frame[0, at] = 1.0
         out = band_filter(frame, survey.meta.fs, (lo, hi), taper=cfg.taper, taper_param=cfg.taper_param)[0]
-    k = out[: 2 * half_width + 1].astype(np.complex128)
+    k = out[at - half_width : at + half_width + 1].astype(np.complex128)
     if not abs(k[half_width]) > 0:
         raise ShsasError("deconvolution: the point-spread kernel is zero at lag 0")
     k = k / k[half_width]

@@ -254,7 +254,7 @@ def _check_resume_key(ckpt: Path, spec: ReconstructionSpec, survey: Survey) -> N
 
 def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Path,
                 progress: ProgressFn, should_stop: StopFn) -> np.ndarray:
-    from .deconv import DeconvConfig, deconvolve
+    from .deconv import deconvolve
 
     path = ckpt / "deconvolved.npy"
     if path.exists():
@@ -262,10 +262,8 @@ def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Pat
         if arr.shape == survey.shape:
             progress(1.0, "deconvolution", {"cached": 1.0})
             return arr
-    cfg = DeconvConfig(method=spec.deconvolution)
-    if spec.deconvolution == "neural":
-        cfg = cfg.model_copy(update={"neural": cfg.neural.model_copy(update={"seed": spec.seed})})
-    s_pd = np.asarray(deconvolve(survey, cfg, device=device, progress=progress, should_stop=should_stop),
+    s_pd = np.asarray(deconvolve(survey, deconv_config(spec), device=device, progress=progress,
+                                 should_stop=should_stop),
                       dtype=np.complex64)
     from .export import atomic_path
 
@@ -299,6 +297,16 @@ class _ImageCache:
             self._volume = vol
         progress(1.0, "backprojection", {})
         return self._volume
+
+
+def deconv_config(spec: ReconstructionSpec) -> Any:
+    """The deconvolution the job runs (its kernel is also the neural forward model's PSF)."""
+    from .deconv import DeconvConfig
+
+    cfg = DeconvConfig(method=spec.deconvolution)
+    if spec.deconvolution == "neural":
+        cfg = cfg.model_copy(update={"neural": cfg.neural.model_copy(update={"seed": spec.seed})})
+    return cfg
 
 
 def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
@@ -422,8 +430,13 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
             distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
                     should_stop=should_stop, stage=f"warm start:{method}")
     cfg = train_config(spec)
+    psf = None
+    if spec.forward == "psf":
+        from .deconv import point_spread
+
+        psf = point_spread(survey, deconv_config(spec))
     result = fit(field, survey, s_pd, cfg, progress=fit_progress, should_stop=should_stop,
-                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}")
+                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}", psf=psf)
     return field, result
 
 

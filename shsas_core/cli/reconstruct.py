@@ -50,6 +50,10 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
                    help=f"Adam learning rate of the neural methods {_default('lr')}")
     g.add_argument("--lr-final", type=float, default=None,
                    help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
+    g.add_argument("--forward", choices=["psf", "impulse"], default=None,
+                   help="forward model of the neural methods: psf = the rendered impulse response "
+                   "convolved with the deconvolution's point-spread kernel, impulse = the paper's "
+                   f"ideal-deconvolution model {_default('forward')}")
     g.add_argument("--init", choices=["backprojection", "none"], default=None,
                    help="start of the neural methods: backprojection = distil the backprojection image "
                    f"into the field first, none = the paper's empty field {_default('init')}")
@@ -73,7 +77,7 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
               "device": "device", "threshold": "threshold", "deconv": "deconvolution", "seed": "seed",
               "bins": "num_bins", "rays": "num_rays", "pings_per_batch": "pings_per_batch",
               "holdout": "holdout_fraction", "lr": "lr", "lr_final": "lr_final", "encoding": "encoding",
-              "target": "target", "init": "init"}
+              "target": "target", "init": "init", "forward": "forward"}
     from ..spec import PRESETS
 
     kw: dict[str, object] = dict(defaults)

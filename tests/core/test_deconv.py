@@ -14,6 +14,7 @@ from shsas_core.deconv import (
     NeuralDeconvConfig,
     band_filter,
     deconvolve,
+    point_spread,
     replica_in_frame,
     signal_band,
     wiener_deconvolve,
@@ -211,3 +212,19 @@ def test_band_filter_keeps_impulses_in_place_with_unit_peak():
     spec = np.fft.fft(y[0], 1024)
     f = np.fft.fftfreq(1024, 1 / FS)
     assert np.abs(spec[(f < 9e3) | (f > 31e3)]).max() < 0.02 * np.abs(spec).max()
+
+
+@pytest.mark.parametrize("kind", ["real", "baseband"])
+def test_point_spread_is_the_deconvolved_echo_of_a_point(kind):
+    """The kernel equals what deconvolve() makes of a real point echo at a whole-sample delay
+    (in the analytic passband frame the neural renderer trains in)."""
+    k0, h = 250, 8
+    s = _trace_survey([T0 + k0 / FS], [1.0], kind=kind)
+    y = deconvolve(s, DeconvConfig(method="wiener"))[0].astype(np.complex128)
+    if kind == "baseband":
+        y = y * np.exp(2j * np.pi * 20e3 * (T0 + np.arange(y.size) / FS))
+    ref = y[k0 - h : k0 + h + 1] / y[k0]
+    got = point_spread(s, DeconvConfig(method="wiener"), half_width=h)
+    assert got.shape == (2 * h + 1,) and got[h] == 1.0
+    np.testing.assert_allclose(got, ref, atol=3e-3)
+    assert point_spread(s, DeconvConfig(method="none")) is None
