@@ -134,9 +134,11 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         try:
             up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes)
             if up.path is None:
-                raise UploadError(422, "survey: missing file part 'survey' (multipart field name must be 'survey')")
+                raise UploadError(422, "survey: missing file part 'survey' (fix: send the survey file as "
+                                       "the multipart field 'survey', e.g. curl -F survey=@scan.h5)")
             if up.size == 0:
-                raise UploadError(422, "survey: the uploaded file is empty")
+                raise UploadError(422, f"survey '{up.display_name}': the uploaded file is empty "
+                                       "(fix: check the path given to the upload)")
             spec_text = up.fields.get("spec", "").strip() or "{}"
             try:
                 spec = ReconstructionSpec.model_validate_json(spec_text)
@@ -152,8 +154,10 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                         raise UploadError(409, f"Idempotency-Key already used for job {prior.id} "
                                                "with a different survey or spec")
                     return _accepted(prior, request)
-            checked = await to_thread.run_sync(validate_in_child, up.path, settings.validate_memory_bytes,
-                                               settings.validate_timeout_s)
+            upload_path = up.path
+            checked = await to_thread.run_sync(lambda: validate_in_child(
+                upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
+                display_name=up.display_name))
             job_id = uuid.uuid4().hex
             in_dir, _ = job_paths(settings, job_id)
             in_dir.mkdir(parents=True)
