@@ -235,7 +235,15 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         416: {"description": "range not satisfiable"},
         200: {"content": {"application/octet-stream": {}, "model/gltf-binary": {}, "application/json": {},
                           "text/html": {}}}})
-    def get_artifact(job_id: str, name: str, who: Owner, request: Request) -> Response:
+    def get_artifact(
+        job_id: str, name: str, who: Owner, request: Request,
+        # Declared so that the OpenAPI schema documents them (and fuzzers send them); the
+        # values are read from request.headers by file_response.
+        range_: Annotated[str | None, Header(alias="Range", description="one byte range: bytes=a-b, bytes=a- or "
+                                                         "bytes=-n (206; 416 when unsatisfiable)")] = None,
+        if_range: Annotated[str | None, Header(description="an ETag: Range applies only if it matches")] = None,
+        if_none_match: Annotated[str | None, Header(description="ETags: 304 if one matches")] = None,
+    ) -> Response:
         """Download one artifact; supports Range and ETag/If-None-Match."""
         job = job_or_404(job_id, who)
         _, out_dir = job_paths(settings, job.id)

@@ -18,6 +18,8 @@ from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.requests import Request
 
 MAX_TEXT_FIELD = 64 * 1024
+#: python-multipart refuses longer boundaries (RFC 2046 allows 70 characters).
+MAX_BOUNDARY = 256
 #: Raw bytes handed to the parser (in a thread) at a time: amortises the thread hop.
 BATCH = 1024 * 1024
 #: After the cap is passed the rest of the body is read and dropped up to this many bytes, so
@@ -184,6 +186,11 @@ async def receive_upload(request: Request, dest: Path, max_bytes: int, file_fiel
                                "an optional 'spec' JSON part (fix: curl -F survey=@scan.h5 "
                                "-F 'spec={...}')")
     boundary = params[b"boundary"]
+    if len(boundary) > MAX_BOUNDARY:
+        await _drain(request.stream())
+        raise UploadError(400, f"Content-Type: the multipart boundary is {len(boundary)} characters, "
+                               f"longer than {MAX_BOUNDARY} (fix: RFC 2046 allows at most 70; let the "
+                               "HTTP client choose the boundary)")
     if request.query_params:
         names = ", ".join(clean_filename(k.encode())[:64] or "(empty name)"
                           for k in list(request.query_params)[:5])
@@ -198,7 +205,11 @@ async def receive_upload(request: Request, dest: Path, max_bytes: int, file_fiel
                                "survey, or ask the operator to raise the limit)")
     recv = _Receiver(dest, max_bytes, file_field, text_fields)
     stream = request.stream()
-    parser = MultipartParser(boundary, recv.callbacks())
+    try:
+        parser = MultipartParser(boundary, recv.callbacks())
+    except Exception as exc:  # python-multipart's own checks on the boundary
+        await _drain(stream)
+        raise UploadError(400, f"Content-Type: bad multipart boundary ({exc})") from None
     buf = bytearray()
     try:
         async for chunk in stream:

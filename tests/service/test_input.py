@@ -15,7 +15,7 @@ import httpx
 import numpy as np
 import pytest
 
-from .conftest import start_server
+from .conftest import start_server, submit, wait_for, write_tiny_survey
 
 pytestmark = pytest.mark.service
 
@@ -112,4 +112,53 @@ def test_validation_messages_name_the_users_file(client, survey_file: Path, tmp_
         detail = _detail(r)
         if r.status_code != 422 or filename not in detail or "upload.part" in detail or "/uploads/" in detail:
             problems.append(f"{filename}: {r.status_code} {detail!r}")
+    assert not problems, "\n".join(problems)
+
+
+def test_long_multipart_boundary_gets_400(client) -> None:
+    boundary = "b" * 300
+    body = f"--{boundary}\r\nContent-Disposition: form-data; name=\"spec\"\r\n\r\n{{}}\r\n--{boundary}--\r\n"
+    r = client.post("/reconstructions", content=body.encode(),
+                    headers={"Content-Type": f"multipart/form-data; boundary={boundary}"})
+    assert r.status_code == 400, r.text
+    assert "boundary" in _detail(r)
+
+
+@pytest.fixture(scope="module")
+def artifact(server) -> tuple[str, bytes]:
+    """The URL and bytes of one artifact of a finished job."""
+    survey = write_tiny_survey(server["tmp"] / "tiny.h5")
+    with httpx.Client(base_url=server["base"], timeout=60) as c:
+        r = submit(c, survey, QUICK_SPEC)
+        assert r.status_code == 202, r.text
+        done = wait_for(c, r.json()["id"], lambda j: j["status"] in ("succeeded", "failed"), 180,
+                        "job to finish")
+        assert done["status"] == "succeeded", done
+        url = done["artifacts"][0]["url"]
+        return url, c.get(url).content
+
+
+def test_range_numbers_of_any_length(client, artifact) -> None:
+    """Range positions of any length: 206, 416 or 200, never 500 (int() refuses > 4300 digits)."""
+    url, content = artifact
+    size = len(content)
+    huge = "9" * 5000
+    expect = {
+        "bytes=0-99999999999999999999999999": (206, content),
+        f"bytes=0-{huge}": (206, content),
+        f"bytes={huge}-": (416, b""),
+        f"bytes={huge}-{huge}": (416, b""),
+        f"bytes=-{huge}": (206, content),
+        f"bytes={'0' * 5000}5-9": (206, content[5:10]),
+        f"bytes=10-{'0' * 5000}{size - 1}": (206, content[10:]),
+    }
+    problems = []
+    for rng, (status, body) in expect.items():
+        try:
+            r = client.get(url, headers={"Range": rng})
+        except httpx.HTTPError as exc:  # what a server error looked like before the fix
+            problems.append(f"{rng[:40]}...: {type(exc).__name__}")
+            continue
+        if r.status_code != status or (status != 416 and r.content != body):
+            problems.append(f"{rng[:40]}...: {r.status_code}, {len(r.content)} bytes")
     assert not problems, "\n".join(problems)
