@@ -121,7 +121,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
               responses={**ERRORS, 409: {"model": ErrorOut}, 413: {"model": ErrorOut},
                          415: {"model": ErrorOut}, 422: {"model": ErrorOut}, 503: {"model": ErrorOut}},
               openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
-                  "type": "object", "required": ["survey"], "properties": {
+                  "type": "object", "required": ["survey"], "additionalProperties": False, "properties": {
                       "survey": {"type": "string", "format": "binary",
                                  "description": "canonical shsas HDF5, AirSAS zip or SVSS HDF5"},
                       "spec": {"type": "string", "description": "ReconstructionSpec as JSON (defaults if absent)"},
