@@ -20,17 +20,18 @@ class SurveyValidationError(ShsasError, ValueError):
     Args:
         field: dotted path of the offending field, e.g. ``"meta.fs"`` or ``"pings/tx"``.
         problem: what is wrong, with the offending value.
-        fix: how to fix it (optional).
+        fix: how to fix it; without one the message points to the layouts in docs/formats.md,
+            so that every message has the ``(fix: ...)`` docs/usage.md promises.
     """
+
+    #: The fix of an error raised without one.
+    DEFAULT_FIX = "see the layout this field must follow in docs/formats.md"
 
     def __init__(self, field: str, problem: str, fix: str | None = None):
         self.field = field
         self.problem = problem
-        self.fix = fix
-        msg = f"{field}: {problem}"
-        if fix:
-            msg += f" (fix: {fix})"
-        super().__init__(msg)
+        self.fix = fix or self.DEFAULT_FIX
+        super().__init__(f"{field}: {problem} (fix: {self.fix})")
 
 
 class UnsafeFileError(SurveyValidationError):

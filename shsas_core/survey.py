@@ -7,11 +7,13 @@ layout and docs/architecture.md for where the survey flows next.
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Any, Literal
 
 import numpy as np
 import pydantic
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic_core import PydanticCustomError
 
 from .errors import SurveyValidationError
 
@@ -27,6 +29,12 @@ MAX_MESH_ELEMENTS = 20_000_000
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+def _rule(problem: str, fix: str) -> PydanticCustomError:
+    """A validator's error that carries its fix (read back by :func:`parse_meta`)."""
+    # The problem is the template: escape braces so that pydantic does not format them.
+    return PydanticCustomError("meta_rule", problem.replace("{", "{{").replace("}", "}}"), {"fix": fix})
 
 
 class PulseParams(_Strict):
@@ -61,9 +69,10 @@ class SceneBox(_Strict):
     def _ordered(self) -> SceneBox:
         lo, hi = np.asarray(self.min), np.asarray(self.max)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            raise ValueError("corners must be finite")
+            raise _rule("corners must be finite", "give min and max as three finite numbers each, metres")
         if np.any(hi <= lo):
-            raise ValueError(f"max {self.max} must exceed min {self.min} on every axis")
+            raise _rule(f"max {self.max} must exceed min {self.min} on every axis",
+                        "swap the corners, or give the box a non-zero size on every axis")
         return self
 
     @property
@@ -93,31 +102,115 @@ class SurveyMeta(_Strict):
     def _sampling(self) -> SurveyMeta:
         if self.signal_kind == "baseband":
             if self.carrier_hz is None:
-                raise ValueError("carrier_hz is required when signal_kind is 'baseband'")
+                raise _rule("carrier_hz is required when signal_kind is 'baseband'",
+                            "set carrier_hz to the frequency removed by basebanding, Hz")
             if self.fs <= self.pulse.bandwidth:
-                raise ValueError(
-                    f"fs={self.fs:g} Hz is not above the pulse bandwidth {self.pulse.bandwidth:g} Hz"
-                )
+                raise _rule(
+                    f"fs={self.fs:g} Hz is not above the pulse bandwidth {self.pulse.bandwidth:g} Hz",
+                    "check fs (Hz, not kHz) and pulse.f_start/pulse.f_stop")
         elif self.fs <= 2 * self.pulse.f_max:
-            raise ValueError(
+            raise _rule(
                 f"fs={self.fs:g} Hz is not above twice the top chirp frequency "
-                f"({2 * self.pulse.f_max:g} Hz); raise fs or lower pulse.f_stop"
-            )
+                f"({2 * self.pulse.f_max:g} Hz)",
+                "check fs and the pulse band (Hz, not kHz); complex baseband data need "
+                "signal_kind 'baseband' and carrier_hz")
         return self
 
 
+#: Meta fields that are objects: their fields may also be given flat, as dotted keys
+#: (``"pulse.f_start": 20000``), the way docs/formats.md's meta table names them.
+NESTED_META = ("pulse", "scene_box", "attrs")
+
+
+def meta_field_names() -> list[str]:
+    """Every meta field as docs/formats.md's table names it: ``fs``, ``pulse.f_start``, ..."""
+    names = []
+    for name, info in SurveyMeta.model_fields.items():
+        sub = info.annotation
+        if isinstance(sub, type) and issubclass(sub, BaseModel):
+            names += [f"{name}.{k}" for k in sub.model_fields]
+        else:
+            names.append(name)
+    return names
+
+
+def _unflatten(data: dict[str, Any]) -> dict[str, Any]:
+    """Dotted keys of the nested fields into nested objects; both forms may be mixed."""
+    out = {k: v for k, v in data.items() if not (isinstance(k, str) and k.split(".", 1)[0] in NESTED_META
+                                                  and "." in k)}
+    for key, value in data.items():
+        if not isinstance(key, str) or "." not in key or key.split(".", 1)[0] not in NESTED_META:
+            continue
+        head, tail = key.split(".", 1)
+        group = out.get(head, {})
+        if not isinstance(group, dict):
+            raise SurveyValidationError(f"meta.{head}", f"is given both as a value and as the dotted key {key!r}",
+                                        f"give {head} either as an object or as dotted keys, not both")
+        if tail in group:
+            raise SurveyValidationError(f"meta.{key}", "is given twice, as a dotted key and inside the "
+                                        f"{head!r} object", "give each field once")
+        out[head] = {**group, tail: value}
+    return out
+
+
+#: pydantic comparison error types -> the operator for the fix text.
+_BOUNDS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", "≥"), "less_than": ("lt", "<"),
+           "less_than_equal": ("le", "≤")}
+
+
+def _meta_fix(err: Any) -> str:
+    """How to fix one pydantic error of the meta attribute."""
+    kind, ctx = err["type"], err.get("ctx") or {}
+    if "fix" in ctx:
+        return str(ctx["fix"])
+    if kind == "extra_forbidden":
+        return ("remove it or correct the spelling; the meta fields are " + ", ".join(meta_field_names())
+                + " (nested objects or dotted keys, see docs/formats.md)")
+    if kind in _BOUNDS:
+        key, op = _BOUNDS[kind]
+        return f"give a value {op} {ctx.get(key)} (units: docs/formats.md, meta table)"
+    if kind == "literal_error":
+        return f"use one of {ctx.get('expected')}"
+    if kind.startswith(("float_", "int_", "bool_", "finite_")):
+        return "give a number, in the units of the meta table in docs/formats.md"
+    if kind == "string_too_long":
+        return f"shorten it to at most {ctx.get('max_length')} characters"
+    if kind.startswith("string_"):
+        return "give a string"
+    if kind in ("tuple_type", "list_type", "too_short", "too_long"):
+        return "give a list of three numbers (x, y, z), metres"
+    if kind in ("model_type", "model_attributes_type", "dict_type"):
+        return "give a JSON object"
+    return "see the meta table in docs/formats.md"
+
+
 def parse_meta(data: dict[str, Any] | str) -> SurveyMeta:
-    """Validate metadata from a dict or JSON string; errors name the field ("meta.fs: ...")."""
+    """Validate metadata from a dict or JSON string; errors name the field ("meta.fs: ...").
+
+    Fields of ``pulse``, ``scene_box`` and ``attrs`` may be nested objects or dotted keys
+    (``{"pulse": {"f_start": 1e4}}`` or ``{"pulse.f_start": 1e4}``). Every error names a fix.
+    """
+    if isinstance(data, str | bytes):
+        try:
+            data = json.loads(data)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise SurveyValidationError("meta", f"is not valid JSON ({exc})"[:300],
+                                        "store meta as a JSON object string, e.g. json.dumps({...})") from None
+    if not isinstance(data, dict):
+        raise SurveyValidationError("meta", f"must be a JSON object, got {type(data).__name__}",
+                                    "store meta as a JSON object string, e.g. json.dumps({...})")
     try:
-        if isinstance(data, str):
-            return SurveyMeta.model_validate_json(data)
-        return SurveyMeta.model_validate(data)
+        return SurveyMeta.model_validate(_unflatten(data))
     except pydantic.ValidationError as exc:
         err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"] if p != "__root__")
-        field = "meta" + (f".{loc}" if loc else "")
+        parts = [str(p) for p in err["loc"] if p != "__root__"]
         msg = err["msg"].removeprefix("Value error, ")
-        raise SurveyValidationError(field, f"{msg} (got {err.get('input')!r})"[:400]) from None
+        if err["type"] == "missing" and err["loc"] and isinstance(err["loc"][-1], int):
+            # A short (x, y, z) list: name the list, not its missing item.
+            parts, msg = parts[:-1], "needs three numbers (x, y, z)"
+            err = {**err, "type": "too_short"}
+        field = "meta" + "".join(f".{p}" for p in parts)
+        raise SurveyValidationError(field, f"{msg} (got {err.get('input')!r})"[:400], _meta_fix(err)) from None
 
 
 @dataclasses.dataclass
@@ -223,50 +316,62 @@ class Survey:
         if self.samples is not None:
             if self.samples.ndim != 2:
                 raise SurveyValidationError(
-                    "pings/samples", f"must be 2-D (pings, samples), got shape {self.samples.shape}")
+                    "pings/samples", f"must be 2-D (pings, samples), got shape {self.samples.shape}",
+                    "store one row of samples per ping")
             if not (np.issubdtype(self.samples.dtype, np.floating) or np.iscomplexobj(self.samples)):
-                raise SurveyValidationError("pings/samples", f"must be float or complex, got {self.samples.dtype}")
+                raise SurveyValidationError("pings/samples", f"must be float or complex, got {self.samples.dtype}",
+                                            "store float32 (real) or complex64 (analytic/baseband) samples")
         check_sizes(n, t, int(self.pulse.size))
         for name, arr in (("pings/tx", self.tx), ("pings/rx", self.rx)):
             if arr.shape != (n, 3):
-                raise SurveyValidationError(name, f"shape {arr.shape} does not match (pings={n}, 3)")
+                raise SurveyValidationError(name, f"shape {arr.shape} does not match (pings={n}, 3)",
+                                            "store one (x, y, z) position per ping, metres")
             if not np.all(np.isfinite(arr)):
                 bad = int(np.argwhere(~np.isfinite(arr))[0, 0])
                 raise SurveyValidationError(name, f"non-finite position at ping {bad}",
                                             "drop or repair pings with NaN/inf navigation")
         if self.t0.shape != (n,):
-            raise SurveyValidationError("pings/t0", f"shape {self.t0.shape} does not match (pings={n},)")
+            raise SurveyValidationError("pings/t0", f"shape {self.t0.shape} does not match (pings={n},)",
+                                        "store one start time per ping, seconds after transmit")
         if not np.all(np.isfinite(self.t0)):
-            raise SurveyValidationError("pings/t0", "contains NaN or inf")
+            raise SurveyValidationError("pings/t0", "contains NaN or inf", "drop or repair the bad pings")
         if np.any(self.t0 < 0):
             raise SurveyValidationError("pings/t0", f"negative start time {self.t0.min():g} s",
                                         "t0 is seconds after transmit and must be >= 0")
         if self.pulse.ndim != 1 or not np.all(np.isfinite(self.pulse)):
-            raise SurveyValidationError("pulse/samples", "must be a finite 1-D array")
+            raise SurveyValidationError("pulse/samples", "must be a finite 1-D array",
+                                        "store the transmitted pulse sampled at meta.fs (docs/formats.md)")
         if not np.any(self.pulse != 0):
-            raise SurveyValidationError("pulse/samples", "is all zeros")
+            raise SurveyValidationError("pulse/samples", "is all zeros",
+                                        "store the transmitted pulse sampled at meta.fs (docs/formats.md)")
         for name in ("tx_dir", "rx_dir"):
             v = getattr(self, name)
             if v is None:
                 continue
             if v.shape != (n, 3) or not np.all(np.isfinite(v)):
-                raise SurveyValidationError(f"pings/{name}", f"must be finite with shape ({n}, 3), got {v.shape}")
+                raise SurveyValidationError(f"pings/{name}", f"must be finite with shape ({n}, 3), got {v.shape}",
+                                            "store one unit vector per ping, or leave the dataset out")
             if np.any(np.linalg.norm(v, axis=1) < 1e-9):
-                raise SurveyValidationError(f"pings/{name}", "contains a zero pointing vector")
+                raise SurveyValidationError(f"pings/{name}", "contains a zero pointing vector",
+                                            "store a unit vector for every ping, or leave the dataset out")
         if (self.gt_vertices is None) != (self.gt_faces is None):
-            raise SurveyValidationError("ground_truth", "needs both vertices and faces")
+            raise SurveyValidationError("ground_truth", "needs both vertices and faces",
+                                        "store both datasets, or leave the group out")
         if self.gt_vertices is not None:
             v, f = self.gt_vertices, self.gt_faces
             if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
-                raise SurveyValidationError("ground_truth/vertices", f"must be finite (V, 3), got {v.shape}")
+                raise SurveyValidationError("ground_truth/vertices", f"must be finite (V, 3), got {v.shape}",
+                                            "store (x, y, z) per vertex, metres")
             if f.ndim != 2 or f.shape[1] != 3 or (f.size and (f.min() < 0 or f.max() >= len(v))):
-                raise SurveyValidationError("ground_truth/faces", "must be (F, 3) indices into vertices")
+                raise SurveyValidationError("ground_truth/faces", "must be (F, 3) indices into vertices",
+                                            "store three 0-based vertex indices per triangle")
         for k, a in self.extras.items():
             if not isinstance(a, np.ndarray):
-                raise SurveyValidationError(f"extras/{k}", "must be a numpy array")
+                raise SurveyValidationError(f"extras/{k}", "must be a numpy array", "store a numeric array")
         if self.samples is not None and not np.all(np.isfinite(self.samples)):
             bad = int(np.argwhere(~np.isfinite(self.samples))[0, 0])
-            raise SurveyValidationError("pings/samples", f"non-finite value in ping {bad}")
+            raise SurveyValidationError("pings/samples", f"non-finite value in ping {bad}",
+                                        "drop or repair the bad pings")
         self._check_scene_in_view()
 
     def _check_scene_in_view(self) -> None:
@@ -301,13 +406,17 @@ def check_sizes(n: int, t: int, p: int) -> None:
     if t <= 0:
         raise SurveyValidationError("pings/samples", "pings have no samples", "each ping needs at least one sample")
     if n > MAX_PINGS:
-        raise SurveyValidationError("pings/samples", f"{n} pings exceeds the limit of {MAX_PINGS}")
+        raise SurveyValidationError("pings/samples", f"{n} pings exceeds the limit of {MAX_PINGS}",
+                                    "split the survey into several files")
     if t > MAX_SAMPLES_PER_PING:
-        raise SurveyValidationError("pings/samples", f"{t} samples per ping exceeds the limit of {MAX_SAMPLES_PER_PING}")
+        raise SurveyValidationError("pings/samples", f"{t} samples per ping exceeds the limit of {MAX_SAMPLES_PER_PING}",
+                                    "crop each ping to the range window of the scene")
     if n * t > MAX_TOTAL_SAMPLES:
-        raise SurveyValidationError("pings/samples", f"{n}x{t} samples exceeds the limit of {MAX_TOTAL_SAMPLES}")
+        raise SurveyValidationError("pings/samples", f"{n}x{t} samples exceeds the limit of {MAX_TOTAL_SAMPLES}",
+                                    "crop the pings to the scene, or split the survey")
     if p <= 0 or p > MAX_PULSE_SAMPLES:
-        raise SurveyValidationError("pulse/samples", f"pulse has {p} samples (allowed 1..{MAX_PULSE_SAMPLES})")
+        raise SurveyValidationError("pulse/samples", f"pulse has {p} samples (allowed 1..{MAX_PULSE_SAMPLES})",
+                                    "store the transmitted pulse sampled at meta.fs (docs/formats.md)")
 
 
 def default_pulse(meta: SurveyMeta) -> np.ndarray:
