@@ -23,6 +23,7 @@ from .survey import (
     Survey,
     check_sizes,
     parse_meta,
+    pulse_disagreement,
 )
 
 FORMAT_NAME = "shsas-survey"
@@ -258,6 +259,8 @@ def summarize(survey: Survey) -> dict[str, Any]:
         "sound_speed_m_s": m.sound_speed,
         "band_hz": [m.pulse.f_start, m.pulse.f_stop],
         "pulse_duration_s": m.pulse.duration,
+        # what processing correlates with, beside meta.pulse's description (docs/formats.md)
+        "pulse_samples": int(survey.pulse.size),
         "window": f"{m.pulse.window}({m.pulse.window_param:g})",
         "range_resolution_m": m.sound_speed / (2 * m.pulse.bandwidth),
         "record_s": [float(survey.t0.min()), float(survey.t0.max() + duration)],
@@ -268,6 +271,7 @@ def summarize(survey: Survey) -> dict[str, Any]:
             "vertices": len(survey.gt_vertices), "faces": len(survey.gt_faces)},  # type: ignore[arg-type]
         "extras": sorted(survey.extras),
         "attrs": dict(m.attrs),
+        "warnings": [w for w in (pulse_disagreement(m, survey.pulse),) if w],
     }
 
 

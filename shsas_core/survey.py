@@ -419,6 +419,64 @@ def check_sizes(n: int, t: int, p: int) -> None:
                                     "store the transmitted pulse sampled at meta.fs (docs/formats.md)")
 
 
+#: /pulse/samples and meta.pulse disagree when the samples' length is off duration·fs by more
+#: than this factor (the AirSAS importer's tolerance for a recorded waveform) ...
+PULSE_LENGTH_FACTOR = 2.0
+#: ... or less than this fraction of the pulse's energy lies in meta.pulse's band (widened by
+#: max(10 % of the bandwidth, 2/duration) on each side: a short pulse's spectrum is wide), or
+#: its mean frequency is off the band centre by more than max(25 % of the bandwidth, 2/duration).
+PULSE_MIN_IN_BAND = 0.5
+
+_PULSE_FIX = ("make meta.pulse (f_start, f_stop, duration) describe the pulse stored in /pulse/samples, "
+              "sampled at meta.fs; for baseband surveys store it basebanded like the samples "
+              "(docs/formats.md, 'The pulse')")
+
+
+def pulse_disagreement(meta: SurveyMeta, pulse: np.ndarray) -> str | None:
+    """How ``/pulse/samples`` and ``meta.pulse`` disagree, as a one-line message; None if they agree.
+
+    Processing correlates with the samples (matched filter, deconvolution replica) but takes
+    the band from ``meta.pulse`` (the deconvolution filter's band, the demodulation carrier):
+    two descriptions of different pulses give noise, not an image. The checks are loose
+    enough for a recorded pulse (an AirSAS waveform, an SVSS kernel); see docs/formats.md.
+    """
+    pulse = np.asarray(pulse)
+    fs, pp = meta.fs, meta.pulse
+    expect = max(round(pp.duration * fs), 1)
+    n_p = int(pulse.size)
+    if not expect / PULSE_LENGTH_FACTOR <= n_p <= expect * PULSE_LENGTH_FACTOR:
+        return (f"pulse/samples: has {n_p} samples ({n_p / fs:.4g} s at meta.fs) but meta.pulse.duration x "
+                f"meta.fs = {expect} samples: the two pulse descriptions disagree (fix: {_PULSE_FIX})")
+    # The spectrum in the frame processing uses: a real pulse is made analytic (positive
+    # frequencies) and, for baseband data, shifted down by the carrier; a complex pulse is
+    # taken as it is (analytic passband, or already basebanded for baseband data).
+    n_fft = 1 << max(int(np.ceil(np.log2(8 * n_p))), 10)
+    power = np.abs(np.fft.fft(pulse, n_fft)) ** 2
+    freq = np.fft.fftfreq(n_fft, 1.0 / fs)
+    lo, hi = min(pp.f_start, pp.f_stop), max(pp.f_start, pp.f_stop)
+    carrier = float(meta.carrier_hz or 0.0) if meta.signal_kind == "baseband" else 0.0
+    if not np.iscomplexobj(pulse):
+        power = np.where(freq > 0, power, 0.0)
+        freq = freq - carrier
+    lo, hi = lo - carrier, hi - carrier
+    margin = max(0.1 * (hi - lo), 2.0 / pp.duration)
+    # Sampled frequencies wrap around fs (a basebanded band may straddle ±fs/2).
+    inside = np.mod(freq - (lo - margin), fs) <= (hi - lo) + 2 * margin
+    total = float(power.sum())
+    share = float(power[inside].sum()) / total if total > 0 else 0.0
+    # Energy-weighted mean frequency, relative to the band centre (wrapped like the band): a
+    # pulse at the wrong rate or band can have half its energy in a wide band and still be
+    # centred elsewhere.
+    rel = np.mod(freq - 0.5 * (lo + hi) + fs / 2, fs) - fs / 2
+    offset = float((power * rel).sum()) / total if total > 0 else float("inf")
+    frame = f" after basebanding by carrier_hz={carrier:g}" if carrier else ""
+    if share < PULSE_MIN_IN_BAND or abs(offset) > max(0.25 * (hi - lo), 2.0 / pp.duration):
+        return (f"pulse/samples: {share:.0%} of its energy lies in the band of meta.pulse ({lo:g}..{hi:g} Hz"
+                f"{frame}) and its mean frequency is {0.5 * (lo + hi) + offset:g} Hz: the two pulse "
+                f"descriptions disagree (fix: {_PULSE_FIX})")
+    return None
+
+
 def default_pulse(meta: SurveyMeta) -> np.ndarray:
     """Sample the LFM pulse described by ``meta.pulse`` at ``meta.fs``."""
     # imported here: scipy.signal costs seconds to import and `shsas info` never needs it

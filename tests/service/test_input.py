@@ -162,3 +162,22 @@ def test_range_numbers_of_any_length(client, artifact) -> None:
         if r.status_code != status or (status != 416 and r.content != body):
             problems.append(f"{rng[:40]}...: {r.status_code}, {len(r.content)} bytes")
     assert not problems, "\n".join(problems)
+
+
+def test_files_from_other_tools(client, tmp_path: Path) -> None:
+    """A survey written from docs/formats.md with dotted meta keys is accepted; one whose two
+    pulse descriptions disagree gets 422 naming the file, the problem and the fix (item 6)."""
+    from tests.core.test_formats_doc import _disagreeing, write_from_tables
+
+    good = tmp_path / "from another tool.h5"
+    write_from_tables(good, style="dotted")
+    r = submit(client, good, QUICK_SPEC)
+    assert r.status_code == 202, r.text
+    client.post(f"/reconstructions/{r.json()['id']}/cancel")
+
+    bad = tmp_path / "other band.h5"
+    write_from_tables(bad, style="dotted", pulse=_disagreeing("other band"))
+    r = submit(client, bad, QUICK_SPEC)
+    detail = _detail(r)
+    assert r.status_code == 422, detail
+    assert "'other band.h5'" in detail and "pulse/samples" in detail and "disagree" in detail and "(fix: " in detail
