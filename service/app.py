@@ -21,6 +21,7 @@ from anyio import to_thread
 from fastapi import Depends, FastAPI, Header, HTTPException, Query, Request
 from fastapi.responses import JSONResponse, Response
 
+from shsas_core.errors import pydantic_fix
 from shsas_core.spec import ReconstructionSpec
 from worker.dispatch import broker_ping, dispatch
 from worker.reconciler import Reconciler
@@ -43,12 +44,13 @@ ERRORS = {400: {"model": ErrorOut}, 401: {"model": ErrorOut}, 404: {"model": Err
 
 
 def spec_error(exc: pydantic.ValidationError) -> str:
-    """One line per problem, each naming the spec field: ``spec.grid: ... (got 9999)``."""
+    """One line per problem, each naming the spec field and a fix: ``spec.grid: ... (got 9999) (fix: ...)``."""
     parts = []
     for err in exc.errors()[:5]:
         loc = ".".join(str(p) for p in err["loc"])
         got = f" (got {err['input']!r})" if "input" in err and err["type"] != "json_invalid" else ""
-        parts.append(f"spec{'.' + loc if loc else ''}: {err['msg']}{got}"[:300])
+        fix = pydantic_fix(err, list(ReconstructionSpec.model_fields), "the ReconstructionSpec, shsas_core/spec.py")
+        parts.append(f"spec{'.' + loc if loc else ''}: {err['msg']}{got}"[:300] + f" (fix: {fix})")
     return "; ".join(parts)
 
 

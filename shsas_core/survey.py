@@ -15,7 +15,7 @@ import pydantic
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pydantic_core import PydanticCustomError
 
-from .errors import SurveyValidationError
+from .errors import SurveyValidationError, pydantic_fix
 
 SignalKind = Literal["real", "analytic", "baseband"]
 
@@ -153,35 +153,14 @@ def _unflatten(data: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-#: pydantic comparison error types -> the operator for the fix text.
-_BOUNDS = {"greater_than": ("gt", ">"), "greater_than_equal": ("ge", "≥"), "less_than": ("lt", "<"),
-           "less_than_equal": ("le", "≤")}
-
-
 def _meta_fix(err: Any) -> str:
     """How to fix one pydantic error of the meta attribute."""
-    kind, ctx = err["type"], err.get("ctx") or {}
-    if "fix" in ctx:
-        return str(ctx["fix"])
-    if kind == "extra_forbidden":
-        return ("remove it or correct the spelling; the meta fields are " + ", ".join(meta_field_names())
-                + " (nested objects or dotted keys, see docs/formats.md)")
-    if kind in _BOUNDS:
-        key, op = _BOUNDS[kind]
-        return f"give a value {op} {ctx.get(key)} (units: docs/formats.md, meta table)"
-    if kind == "literal_error":
-        return f"use one of {ctx.get('expected')}"
-    if kind.startswith(("float_", "int_", "bool_", "finite_")):
-        return "give a number, in the units of the meta table in docs/formats.md"
-    if kind == "string_too_long":
-        return f"shorten it to at most {ctx.get('max_length')} characters"
-    if kind.startswith("string_"):
-        return "give a string"
-    if kind in ("tuple_type", "list_type", "too_short", "too_long"):
+    if err["type"] in ("tuple_type", "list_type", "too_short", "too_long"):
         return "give a list of three numbers (x, y, z), metres"
-    if kind in ("model_type", "model_attributes_type", "dict_type"):
-        return "give a JSON object"
-    return "see the meta table in docs/formats.md"
+    if err["type"] == "extra_forbidden":
+        return ("remove it or correct the spelling; the meta fields are " + ", ".join(meta_field_names())
+                + " (as nested objects or dotted keys, docs/formats.md)")
+    return pydantic_fix(err, meta_field_names(), "docs/formats.md, meta table")
 
 
 def parse_meta(data: dict[str, Any] | str) -> SurveyMeta:

@@ -81,6 +81,21 @@ def test_misnamed_form_fields_get_422_naming_them(client, survey_file: Path, tmp
     assert _job_count(client) == before, "a refused request queued a job"
 
 
+def test_spec_errors_carry_a_fix(client, survey_file: Path) -> None:
+    """A bad spec gets 422 naming the spec field, the problem and how to fix it."""
+    cases = {"{\"gird\": 16}": ("spec.gird", "grid"), "{\"grid\": 100000}": ("spec.grid", "≤ 512"),
+             "{\"methods\": [\"magic\"]}": ("spec.methods.0", "'shsas'"), "{grid: 16": ("spec", "JSON")}
+    problems = []
+    for spec, (field, fix_word) in cases.items():
+        r = client.post("/reconstructions", files={"survey": ("scan.h5", survey_file.read_bytes())},
+                        data={"spec": spec})
+        detail = _detail(r)
+        fix = detail.partition("(fix: ")[2]
+        if r.status_code != 422 or not detail.startswith(f"{field}: ") or fix_word not in fix:
+            problems.append(f"{spec}: {r.status_code} {detail!r}")
+    assert not problems, "\n".join(problems)
+
+
 def _corrupt(path: Path, good: Path, edit) -> Path:
     path.write_bytes(good.read_bytes())
     with h5py.File(path, "a") as f:
