@@ -21,6 +21,7 @@ from anyio import to_thread
 from fastapi import Depends, FastAPI, Header, HTTPException, Query, Request
 from fastapi.responses import JSONResponse, Response
 
+from shsas_core.errors import pydantic_fix
 from shsas_core.spec import ReconstructionSpec
 from worker.dispatch import broker_ping, dispatch
 from worker.reconciler import Reconciler
@@ -43,12 +44,13 @@ ERRORS = {400: {"model": ErrorOut}, 401: {"model": ErrorOut}, 404: {"model": Err
 
 
 def spec_error(exc: pydantic.ValidationError) -> str:
-    """One line per problem, each naming the spec field: ``spec.grid: ... (got 9999)``."""
+    """One line per problem, each naming the spec field and a fix: ``spec.grid: ... (got 9999) (fix: ...)``."""
     parts = []
     for err in exc.errors()[:5]:
         loc = ".".join(str(p) for p in err["loc"])
         got = f" (got {err['input']!r})" if "input" in err and err["type"] != "json_invalid" else ""
-        parts.append(f"spec{'.' + loc if loc else ''}: {err['msg']}{got}"[:300])
+        fix = pydantic_fix(err, list(ReconstructionSpec.model_fields), "the ReconstructionSpec, shsas_core/spec.py")
+        parts.append(f"spec{'.' + loc if loc else ''}: {err['msg']}{got}"[:300] + f" (fix: {fix})")
     return "; ".join(parts)
 
 
@@ -121,7 +123,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
               responses={**ERRORS, 409: {"model": ErrorOut}, 413: {"model": ErrorOut},
                          415: {"model": ErrorOut}, 422: {"model": ErrorOut}, 503: {"model": ErrorOut}},
               openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
-                  "type": "object", "required": ["survey"], "properties": {
+                  "type": "object", "required": ["survey"], "additionalProperties": False, "properties": {
                       "survey": {"type": "string", "format": "binary",
                                  "description": "canonical shsas HDF5, AirSAS zip or SVSS HDF5"},
                       "spec": {"type": "string", "description": "ReconstructionSpec as JSON (defaults if absent)"},
@@ -134,9 +136,11 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         try:
             up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes)
             if up.path is None:
-                raise UploadError(422, "survey: missing file part 'survey' (multipart field name must be 'survey')")
+                raise UploadError(422, "survey: missing file part 'survey' (fix: send the survey file as "
+                                       "the multipart field 'survey', e.g. curl -F survey=@scan.h5)")
             if up.size == 0:
-                raise UploadError(422, "survey: the uploaded file is empty")
+                raise UploadError(422, f"survey '{up.display_name}': the uploaded file is empty "
+                                       "(fix: check the path given to the upload)")
             spec_text = up.fields.get("spec", "").strip() or "{}"
             try:
                 spec = ReconstructionSpec.model_validate_json(spec_text)
@@ -152,8 +156,10 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                         raise UploadError(409, f"Idempotency-Key already used for job {prior.id} "
                                                "with a different survey or spec")
                     return _accepted(prior, request)
-            checked = await to_thread.run_sync(validate_in_child, up.path, settings.validate_memory_bytes,
-                                               settings.validate_timeout_s)
+            upload_path = up.path
+            checked = await to_thread.run_sync(lambda: validate_in_child(
+                upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
+                display_name=up.display_name))
             job_id = uuid.uuid4().hex
             in_dir, _ = job_paths(settings, job_id)
             in_dir.mkdir(parents=True)
@@ -231,7 +237,15 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         416: {"description": "range not satisfiable"},
         200: {"content": {"application/octet-stream": {}, "model/gltf-binary": {}, "application/json": {},
                           "text/html": {}}}})
-    def get_artifact(job_id: str, name: str, who: Owner, request: Request) -> Response:
+    def get_artifact(
+        job_id: str, name: str, who: Owner, request: Request,
+        # Declared so that the OpenAPI schema documents them (and fuzzers send them); the
+        # values are read from request.headers by file_response.
+        range_: Annotated[str | None, Header(alias="Range", description="one byte range: bytes=a-b, bytes=a- or "
+                                                         "bytes=-n (206; 416 when unsatisfiable)")] = None,
+        if_range: Annotated[str | None, Header(description="an ETag: Range applies only if it matches")] = None,
+        if_none_match: Annotated[str | None, Header(description="ETags: 304 if one matches")] = None,
+    ) -> Response:
         """Download one artifact; supports Range and ETag/If-None-Match."""
         job = job_or_404(job_id, who)
         _, out_dir = job_paths(settings, job.id)

@@ -19,7 +19,7 @@ MEDIA_TYPES = {
     ".png": "image/png",
 }
 CHUNK = 256 * 1024
-_RANGE = re.compile(r"^bytes=(\d*)-(\d*)$")
+_RANGE = re.compile(r"^bytes=([0-9]*)-([0-9]*)$")
 
 
 def media_type(name: str) -> str:
@@ -52,6 +52,20 @@ def _read(path: Path, start: int, length: int) -> Iterator[bytes]:
             yield block
 
 
+def _position(digits: str, size: int) -> int | None:
+    """A byte position from a Range header (None when empty); past ``size`` it is ``size``.
+
+    Any value at or beyond the file's size means the same thing (past the end), so it is
+    clamped before conversion: the number can be as long as the header.
+    """
+    if not digits:
+        return None
+    digits = digits.lstrip("0") or "0"
+    if len(digits) > len(str(size)):
+        return size
+    return min(int(digits), size)
+
+
 def file_response(path: Path, headers_in, download_name: str) -> Response:
     """200 / 206 / 304 / 416 for ``path`` following RFC 9110 for one range."""
     size = path.stat().st_size
@@ -72,14 +86,16 @@ def file_response(path: Path, headers_in, download_name: str) -> Response:
     if rng and (if_range is None or if_range.strip() == etag):
         m = _RANGE.match(rng.strip())
         if m and (m.group(1) or m.group(2)):
-            first, last = m.group(1), m.group(2)
-            if first:
-                start = int(first)
-                end = min(int(last), size - 1) if last else size - 1
+            # Digits of any length are legal (RFC 9110); compare them with the size before
+            # int(), which refuses strings over 4300 digits.
+            first, last = _position(m.group(1), size), _position(m.group(2), size)
+            if first is not None:
+                start = first
+                end = min(last, size - 1) if last is not None else size - 1
             else:  # suffix range: the last N bytes
-                n = int(last)
-                start, end = max(size - n, 0), size - 1
-            if start >= size or end < start or (not first and int(last) == 0):
+                assert last is not None
+                start, end = max(size - last, 0), size - 1
+            if start >= size or end < start or (first is None and last == 0):
                 return Response(status_code=416, headers={**base, "Content-Range": f"bytes */{size}"})
             length = end - start + 1
             return StreamingResponse(_read(path, start, length), status_code=206, media_type=mtype,

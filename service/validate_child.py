@@ -49,7 +49,13 @@ def validate(path: str) -> dict:
             from shsas_core.errors import SurveyValidationError
 
             raise SurveyValidationError("pings/samples", "contains NaN or inf")
-    return {"format": fmt, "summary": summarize(survey)}
+    summary = summarize(survey)
+    if summary["warnings"]:
+        # A job on such a file would run for hours and make noise: refuse it now (docs/service.md).
+        from shsas_core.errors import ShsasError
+
+        raise ShsasError(summary["warnings"][0])
+    return {"format": fmt, "summary": summary}
 
 
 def main() -> int:

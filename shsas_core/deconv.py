@@ -27,7 +27,7 @@ from scipy.signal import windows
 
 from .errors import ShsasError
 from .progress import ProgressFn, StopFn, check_stop, no_progress
-from .signal import analytic_samples, pulse_replica
+from .signal import analytic_samples, replica_in_frame
 from .survey import Survey
 
 
@@ -102,15 +102,6 @@ def signal_band(survey: Survey) -> tuple[float, float]:
         fc = float(survey.meta.carrier_hz)
         lo, hi = lo - fc, hi - fc
     return lo, hi
-
-
-def replica_in_frame(survey: Survey) -> np.ndarray:
-    """(P,) complex analytic replica, basebanded (relative to its own start) for baseband data."""
-    rep = pulse_replica(survey)
-    if survey.meta.signal_kind == "baseband":
-        m = np.arange(rep.size) / survey.meta.fs
-        rep = rep * np.exp(-2j * np.pi * float(survey.meta.carrier_hz) * m)
-    return rep
 
 
 def wiener_deconvolve(

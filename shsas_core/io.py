@@ -23,6 +23,7 @@ from .survey import (
     Survey,
     check_sizes,
     parse_meta,
+    pulse_disagreement,
 )
 
 FORMAT_NAME = "shsas-survey"
@@ -124,7 +125,8 @@ def _dataset(f: h5py.File, name: str, required: bool = True) -> h5py.Dataset | N
         return None
     ds = f[name]
     if not isinstance(ds, h5py.Dataset):
-        raise SurveyValidationError(name, "must be a dataset, found a group")
+        raise SurveyValidationError(name, "must be a dataset, found a group",
+                                    "store the array itself at this path (docs/formats.md, Datasets)")
     return ds
 
 
@@ -133,9 +135,12 @@ def _check(ds: h5py.Dataset | None, name: str, shape: tuple[int | None, ...], ki
         return
     if len(ds.shape) != len(shape) or any(s is not None and s != d for s, d in zip(shape, ds.shape, strict=True)):
         want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
-        raise SurveyValidationError(name, f"has shape {ds.shape}, expected {want}")
+        raise SurveyValidationError(name, f"has shape {ds.shape}, expected {want}",
+                                    f"store it with shape {want}, N = number of pings (docs/formats.md, Datasets)")
     if ds.dtype.type not in kinds:
-        raise SurveyValidationError(name, f"has dtype {ds.dtype}, expected one of {[k.__name__ for k in kinds]}")
+        names = [k.__name__ for k in kinds]
+        raise SurveyValidationError(name, f"has dtype {ds.dtype}, expected one of {names}",
+                                    f"convert it to one of {names} before writing")
 
 
 def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extras: bool = True) -> Survey:
@@ -151,7 +156,7 @@ def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extr
     """
     path = Path(path)
     if not path.is_file():
-        raise SurveyValidationError("file", f"'{path}' does not exist or is not a file")
+        raise SurveyValidationError("file", f"'{path}' does not exist or is not a file", "check the path")
     if not h5py.is_hdf5(path):
         raise SurveyValidationError("file", f"'{path.name}' is not an HDF5 file",
                                     "convert it first with `shsas convert`")
@@ -163,7 +168,7 @@ def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extr
     except (OSError, KeyError, RuntimeError, ValueError) as exc:
         raise SurveyValidationError(
             "file", f"'{path.name}' could not be read as HDF5 ({str(exc).splitlines()[0][:160]}); "
-            "the file may be truncated or corrupt") from None
+            "the file may be truncated or corrupt", "copy or upload the whole file again; check its size") from None
 
 
 def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
@@ -178,18 +183,23 @@ def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
     if isinstance(version, np.generic):
         version = version.item()
     if not isinstance(version, int | float) or version != SCHEMA_VERSION:
-        raise SurveyValidationError("schema_version", f"is {version!r}; this build reads version {SCHEMA_VERSION}")
+        raise SurveyValidationError("schema_version", f"is {version!r}; this build reads version {SCHEMA_VERSION}",
+                                    f"write the integer root attribute schema_version = {SCHEMA_VERSION} "
+                                    "(docs/formats.md), or read the file with the shsas that wrote it")
     meta_raw = f.attrs.get("meta")
     if meta_raw is None:
-        raise SurveyValidationError("meta", "attribute is missing")
+        raise SurveyValidationError("meta", "attribute is missing",
+                                    "add the root attribute 'meta', a JSON object string (docs/formats.md)")
     meta = parse_meta(meta_raw.decode() if isinstance(meta_raw, bytes) else str(meta_raw))
 
     samples = _dataset(f, "pings/samples")
     assert samples is not None
     if samples.ndim != 2:
-        raise SurveyValidationError("pings/samples", f"must be 2-D (pings, samples), got shape {samples.shape}")
+        raise SurveyValidationError("pings/samples", f"must be 2-D (pings, samples), got shape {samples.shape}",
+                                    "store one row of samples per ping")
     if samples.dtype.type not in _FLOAT + _COMPLEX:
-        raise SurveyValidationError("pings/samples", f"has dtype {samples.dtype}, expected float32 or complex64")
+        raise SurveyValidationError("pings/samples", f"has dtype {samples.dtype}, expected float32 or complex64",
+                                    "convert the samples to float32 (real) or complex64 before writing")
     n, t = (int(s) for s in samples.shape)
     pulse = _dataset(f, "pulse/samples")
     assert pulse is not None
@@ -209,18 +219,21 @@ def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
         _check(fds, "ground_truth/faces", (None, 3), (np.int32, np.int64, np.uint32, np.uint64))
         assert vds is not None and fds is not None
         if vds.shape[0] > MAX_MESH_ELEMENTS or fds.shape[0] > MAX_MESH_ELEMENTS:
-            raise SurveyValidationError("ground_truth", f"mesh larger than {MAX_MESH_ELEMENTS} elements")
+            raise SurveyValidationError("ground_truth", f"mesh larger than {MAX_MESH_ELEMENTS} elements",
+                                        "decimate the mesh, or leave /ground_truth out")
         verts, faces = vds[()], fds[()]
     extras: dict[str, np.ndarray] = {}
     if load_extras and "extras" in f:
         grp = f["extras"]
         if not isinstance(grp, h5py.Group):
-            raise SurveyValidationError("extras", "must be a group")
+            raise SurveyValidationError("extras", "must be a group",
+                                        "store named arrays under the group /extras, or leave it out")
         for k in grp:
             ds = _dataset(f, f"extras/{k}")
             assert ds is not None
             if ds.size > 4 * max(n * t, 1):
-                raise SurveyValidationError(f"extras/{k}", f"declares {ds.size} elements, too large for this survey")
+                raise SurveyValidationError(f"extras/{k}", f"declares {ds.size} elements, too large for this survey",
+                                            "extras hold at most 4 x pings x samples elements; drop this one")
             extras[k] = ds[()]
     assert tx is not None and rx is not None and t0 is not None
     return Survey(
@@ -246,6 +259,8 @@ def summarize(survey: Survey) -> dict[str, Any]:
         "sound_speed_m_s": m.sound_speed,
         "band_hz": [m.pulse.f_start, m.pulse.f_stop],
         "pulse_duration_s": m.pulse.duration,
+        # what processing correlates with, beside meta.pulse's description (docs/formats.md)
+        "pulse_samples": int(survey.pulse.size),
         "window": f"{m.pulse.window}({m.pulse.window_param:g})",
         "range_resolution_m": m.sound_speed / (2 * m.pulse.bandwidth),
         "record_s": [float(survey.t0.min()), float(survey.t0.max() + duration)],
@@ -256,6 +271,7 @@ def summarize(survey: Survey) -> dict[str, Any]:
             "vertices": len(survey.gt_vertices), "faces": len(survey.gt_faces)},  # type: ignore[arg-type]
         "extras": sorted(survey.extras),
         "attrs": dict(m.attrs),
+        "warnings": [w for w in (pulse_disagreement(m, survey.pulse),) if w],
     }
 
 

@@ -63,6 +63,21 @@ def pulse_replica(survey: Survey) -> np.ndarray:
     return analytic_signal(p.astype(np.float64))
 
 
+def replica_in_frame(survey: Survey) -> np.ndarray:
+    """(P,) complex128 replica of the pulse in the frame of the survey's samples (starts at t = 0).
+
+    A real pulse is the passband pulse: made analytic and, for baseband data, basebanded
+    relative to its own start. A complex pulse is taken as it is: analytic passband, or for
+    baseband data already basebanded like the samples (docs/formats.md; the SVSS importer
+    stores it so). Basebanding a basebanded pulse again would move it out of the band.
+    """
+    rep = pulse_replica(survey)
+    if survey.meta.signal_kind == "baseband" and not np.iscomplexobj(survey.pulse):
+        m = np.arange(rep.size) / survey.meta.fs
+        rep = rep * np.exp(-2j * np.pi * float(survey.meta.carrier_hz) * m)
+    return rep
+
+
 def baseband(signals: np.ndarray, t0: np.ndarray, fs: float, carrier_hz: float) -> np.ndarray:
     """Shift analytic passband signals to complex baseband: ``s · exp(-j 2π f_c t)``.
 
@@ -162,10 +177,7 @@ def matched_filter(survey: Survey, signals: np.ndarray | None = None) -> np.ndar
             raise ShsasError("survey samples were not loaded (read the survey with load_samples=True)")
         signals = survey.samples
     s = np.asarray(signals)
-    rep = pulse_replica(survey)
-    if survey.meta.signal_kind == "baseband":
-        m = np.arange(rep.size) / survey.meta.fs
-        rep = rep * np.exp(-2j * np.pi * float(survey.meta.carrier_hz) * m)
+    rep = replica_in_frame(survey)
     if not np.iscomplexobj(s):
         # Real data correlated with the analytic replica: exactly the analytic version of the
         # real correlation (its real part is Σ s[k+m] p[m]), with no finite-window Hilbert error.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,9 +24,14 @@ def run(args: argparse.Namespace) -> int:
 
     survey = load_survey(args.file, load_samples=False)
     s = summarize(survey)
+    # A file that loads but will not process well (its two pulse descriptions disagree) is
+    # still shown, with the reason on stderr; the service refuses such an upload.
+    for warning in s["warnings"]:
+        print(f"shsas info: warning: {warning}", file=sys.stderr)
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
+    s = {k: v for k, v in s.items() if k != "warnings"}
     from rich.console import Console
     from rich.table import Table
 

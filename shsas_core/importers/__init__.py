@@ -32,14 +32,15 @@ def _detect_dir(p: Path) -> str:
         return "airsas-csv"
     raise UnsupportedFormatError(
         f"file: folder '{p.name}' is neither an AirSAS scan (Coordinates.csv, SysParams.csv, "
-        "Flight-*.csv ...) nor an SVSS track ('unpack float - LF - down - N.hdf5')")
+        "Flight-*.csv ...) nor an SVSS track ('unpack float - LF - down - N.hdf5') "
+        "(fix: give the scan or track folder itself; layouts in docs/formats.md)")
 
 
 def detect_format(path: str | os.PathLike) -> str:
     """Return one of :data:`FORMATS` for ``path`` or raise UnsupportedFormatError."""
     p = Path(path)
     if not p.exists():
-        raise SurveyValidationError("file", f"'{p}' does not exist")
+        raise SurveyValidationError("file", f"'{p}' does not exist", "check the path")
     if p.is_dir():
         return _detect_dir(p)
     with open(p, "rb") as fh:
@@ -64,7 +65,8 @@ def detect_format(path: str | os.PathLike) -> str:
         return "airsas-pickle"
     raise UnsupportedFormatError(
         f"file: '{p.name}' is not a recognised survey (expected canonical HDF5, an AirSAS CSV folder "
-        "or .zip, an AirSAS processed pickle, or SVSS HDF5)")
+        "or .zip, an AirSAS processed pickle, or SVSS HDF5) (fix: check that this is the survey file; "
+        "write other data as a canonical HDF5 survey, docs/formats.md)")
 
 
 def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: bool = True,
@@ -90,7 +92,8 @@ def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: boo
         # safety net: a library error on a malformed file becomes a one-line, named problem
         raise SurveyValidationError(
             "file", f"'{Path(path).name}' could not be read ({type(exc).__name__}: "
-            f"{str(exc).splitlines()[0][:160] if str(exc) else 'no detail'})") from None
+            f"{str(exc).splitlines()[0][:160] if str(exc) else 'no detail'})",
+            "check that the file is complete and in one of the layouts of docs/formats.md") from None
 
 
 def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[str, Any]) -> Survey:
@@ -98,7 +101,8 @@ def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[s
         from ..io import read_survey
 
         if options:
-            raise SurveyValidationError("options", f"{sorted(options)} do not apply to canonical files")
+            raise SurveyValidationError("options", f"{sorted(options)} do not apply to canonical files",
+                                        "drop these options for .h5 survey files")
         return read_survey(path, load_samples=load_samples)
     if fmt == "airsas-csv":
         from .airsas import read_airsas_csv
@@ -112,4 +116,4 @@ def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[s
         from .svss import read_svss
 
         return read_svss(path, load_samples=load_samples, **options)
-    raise UnsupportedFormatError(f"format: unknown format '{fmt}' (use auto or one of {', '.join(FORMATS)})")
+    raise UnsupportedFormatError(f"format: unknown format '{fmt}' (fix: use auto or one of {', '.join(FORMATS)})")
