@@ -10,7 +10,8 @@ cheap enough to detect, that no result should leave the pipeline without being c
   a surface: a fog of density, not an object. Measure: points at or above τ / grid voxels.
 * ``loss_not_falling`` — the fit's data loss (the ToF term, a relative residual: 1.0 = predicting
   zeros) ended where it started. Measure: mean data loss over the last :data:`LOSS_WINDOW` of the
-  iterations / mean over the first.
+  iterations / mean over the first; limit 0.9, lowered when the per-iteration noise is too large
+  to show a fall of 10 % (:func:`loss_limit`).
 
 Each finding is a :class:`ResultWarning` carrying its measure and the limit it crossed, so a
 reader can judge how far off the result is. The pipeline stores them in ``report.json``
@@ -31,28 +32,29 @@ from .volume import Volume
 
 WarningCode = Literal["collapsed", "box_filling", "loss_not_falling"]
 
-#: ``collapsed`` below this relative spread ``(max - min) / max`` of |values|. A reconstruction that
-#: shows anything spans orders of magnitude (backprojection and fitted neural fields measured at
-#: spread > 0.5, see docs/usage.md); float32 rounding of a constant leaves ~1e-7. 1e-3 means the
-#: brightest voxel is within 0.1 % of the faintest: after normalisation to [0, 1] by that range, τ
-#: would cut through noise.
-COLLAPSE_SPREAD_LIMIT = 1e-3
-#: ``box_filling`` above this share of grid voxels at or above τ. The scene box is the object's
-#: bounds plus a small margin, so even a solid object can fill a sizeable part of it: the built-in
-#: sphere (r = 8 cm in a 20 cm box) is 27 % of its box by volume, and its backprojection keeps
-#: 28 % of the 64³ voxels above the Otsu level. Fogs that fill the box leave about half of the
-#: voxels above it (Otsu splits a unimodal histogram near its middle); 40 % separates the two.
+#: ``collapsed`` below this relative spread ``(max - min) / max`` of |values|. Measured on the
+#: built-in sphere (docs/usage.md, Warnings): backprojection images span orders of magnitude
+#: (spread > 0.999); a neural field sits on a floor, so even a fitted one spans little (0.077
+#: for a 300-iteration envelope fit), but a freshly initialised field is flat to 0.0028, and
+#: float32 rounding of a constant leaves ~1e-7. Below 1 % nothing was reconstructed: after
+#: normalisation to [0, 1] by that range, τ would cut through initialisation or rounding noise.
+COLLAPSE_SPREAD_LIMIT = 0.01
 BOX_FILL_LIMIT = 0.40
 #: ``loss_not_falling`` when mean(last window) / mean(first window) of the data loss is at least
-#: this. The per-iteration loss is noisy (one random batch of pings and bins), so a fit that
-#: improved at all has its late-window mean clearly below its early one; a ratio of 0.9 or more
-#: means the fit changed the residual by less than the batch-to-batch noise.
+#: this: a fit that took the residual down by less than 10 % did not learn the data (fits that
+#: learn something measured 0.48-0.79 after 150-300 iterations, one that learns nothing 0.97).
 LOSS_RATIO_LIMIT = 0.90
+#: ... or when the fall is within this many standard errors of the ratio: one iteration's data
+#: loss is one random batch of pings and bins and scatters by 25-45 % of its mean (measured std /
+#: mean of the first window), so a ratio of window means carries noise of its own (about 0.12 for
+#: 10-iteration windows). The limit becomes ``min(LOSS_RATIO_LIMIT, 1 - LOSS_NOISE_SIGMAS * se)``:
+#: a fall no larger than twice its standard error is not shown to be a fall.
+LOSS_NOISE_SIGMAS = 2.0
 #: Share of the iterations averaged at each end of the loss history.
 LOSS_WINDOW = 0.10
-#: Fewer iterations than this are not judged: ten-percent windows of one or two noisy
-#: iterations cannot tell a falling loss from a flat one.
-LOSS_MIN_ITERS = 50
+#: Fewer iterations than this are not judged: windows of fewer than 10 iterations give a
+#: standard error too rough to set the limit by.
+LOSS_MIN_ITERS = 100
 
 
 class ResultWarning(BaseModel):
@@ -91,15 +93,28 @@ def filled_share(volume: Volume, n_points: int) -> float:
     return n_points / max(volume.grid.num_voxels, 1)
 
 
-def loss_ratio(data_loss_history: Sequence[float]) -> float | None:
-    """mean(last :data:`LOSS_WINDOW`) / mean(first) of the finite losses; None when there are
-    fewer than :data:`LOSS_MIN_ITERS` or the first window's mean is not positive."""
+def loss_ratio(data_loss_history: Sequence[float]) -> tuple[float, float] | None:
+    """``(ratio, standard error)``: ratio = mean(last :data:`LOSS_WINDOW`) / mean(first) of the
+    finite losses, its standard error propagated from the two windows' standard errors of the
+    mean. None when there are fewer than :data:`LOSS_MIN_ITERS` or the first mean is not positive."""
     h = np.asarray([v for v in data_loss_history if math.isfinite(v)], dtype=np.float64)
     if len(h) < LOSS_MIN_ITERS:
         return None
-    k = max(1, math.floor(len(h) * LOSS_WINDOW))
-    first, last = float(h[:k].mean()), float(h[-k:].mean())
-    return last / first if first > 0 else None
+    k = max(2, math.floor(len(h) * LOSS_WINDOW))
+    a, b = h[:k], h[-k:]
+    first, last = float(a.mean()), float(b.mean())
+    if not first > 0:
+        return None
+    ratio = last / first
+    # relative standard errors of the two means add in quadrature (independent batches)
+    rel = math.hypot(float(a.std(ddof=1)) / (first * math.sqrt(k)),
+                     float(b.std(ddof=1)) / (max(last, 1e-30) * math.sqrt(k)))
+    return ratio, ratio * rel
+
+
+def loss_limit(stderr: float) -> float:
+    """The ratio at or above which the loss did not fall, for a ratio with standard error ``stderr``."""
+    return max(0.0, min(LOSS_RATIO_LIMIT, 1.0 - LOSS_NOISE_SIGMAS * stderr))
 
 
 def volume_warnings(volume: Volume, tau: float, n_points: int) -> list[ResultWarning]:
@@ -132,14 +147,19 @@ def fit_warnings(data_loss_history: Sequence[float]) -> list[ResultWarning]:
     """Check a neural fit's data-loss history (one value per iteration, from iteration 0).
 
     Returns:
-        ``[loss_not_falling]`` when the late mean is at least :data:`LOSS_RATIO_LIMIT` times the
-        early one, else ``[]`` (also when the history is too short to judge).
+        ``[loss_not_falling]`` when the late-to-early ratio reaches :func:`loss_limit` (0.9, lower
+        when the loss is too noisy to show a smaller fall), else ``[]`` (also when the history
+        is too short to judge).
     """
-    ratio = loss_ratio(data_loss_history)
-    if ratio is None or ratio < LOSS_RATIO_LIMIT:
+    found = loss_ratio(data_loss_history)
+    if found is None:
+        return []
+    ratio, se = found
+    limit = loss_limit(se)
+    if ratio < limit:
         return []
     pct = round(100 * LOSS_WINDOW)
     return [ResultWarning(
-        code="loss_not_falling", measure=ratio, limit=LOSS_RATIO_LIMIT,
+        code="loss_not_falling", measure=ratio, limit=limit,
         message=f"the fit's data loss did not fall (mean of the last {pct} % of iterations / "
                 f"mean of the first {pct} %): the field did not learn the data")]

@@ -67,10 +67,10 @@ def test_a_failed_result_prints_a_warning_and_reaches_the_report(survey_file, tm
     cap = capsys.readouterr()
     lines = [ln for ln in cap.err.splitlines() if ln.startswith("warning: ")]
     assert lines == ["warning: backprojection: the volume is near-constant (relative spread (max-min)/max "
-                     "of |values|): nothing was reconstructed (0 vs limit 0.001)"], cap.err
+                     "of |values|): nothing was reconstructed (0 vs limit 0.01)"], cap.err
     assert "warning:" not in cap.out
     rep = json.loads((out / "report.json").read_text())
-    assert [(w["code"], w["measure"], w["limit"]) for w in rep["methods"][0]["warnings"]] == [("collapsed", 0.0, 1e-3)]
+    assert [(w["code"], w["measure"], w["limit"]) for w in rep["methods"][0]["warnings"]] == [("collapsed", 0.0, 0.01)]
     assert "class='warn'" in (out / "report.html").read_text()
     # a resumed run (nothing recomputed) says it again
     assert main(["reconstruct", str(silent), "--methods", "backprojection", "--grid", "12", "--device", "cpu",

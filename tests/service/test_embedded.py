@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from shsas_core.diagnostics import COLLAPSE_SPREAD_LIMIT
+
 from .conftest import FAST_TIMINGS, db_env, start_server, submit, wait_for, write_tiny_survey
 
 pytestmark = pytest.mark.service
@@ -91,7 +93,7 @@ def test_status_carries_the_warnings_of_a_failed_looking_result(client, server) 
     done = wait_for(client, r.json()["id"], lambda j: j["status"] in ("succeeded", "failed"), 120, "job to finish")
     assert done["status"] == "succeeded", done  # the job ran; its result is flagged
     assert [(w["method"], w["code"], w["measure"], w["limit"]) for w in done["warnings"]] == [
-        ("backprojection", "collapsed", 0.0, 0.001)]
+        ("backprojection", "collapsed", 0.0, COLLAPSE_SPREAD_LIMIT)]
     assert "near-constant" in done["warnings"][0]["message"]
     assert set(done["metrics"]) == {"backprojection"}
     listed = client.get("/reconstructions", params={"status": "succeeded"}).json()["items"]
