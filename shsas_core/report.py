@@ -4,7 +4,8 @@
 The HTML embeds every figure as a base64 PNG (one file, nothing to lose when it is downloaded
 from the service): maximum-intensity projections of each method's volume along x, y and z,
 rendered views of the extracted meshes beside the ground truth, loss curves of the neural
-methods, measured vs. predicted signals for a few pings, and the metrics table.
+methods, measured vs. predicted signals for a few pings, and the metrics table. A method whose
+result looks failed (:mod:`shsas_core.diagnostics`) gets a red box at the top of the page.
 """
 
 from __future__ import annotations
