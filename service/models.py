@@ -7,6 +7,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from shsas_core.diagnostics import ResultWarning
 from worker.store import Job
 
 Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
@@ -33,6 +34,13 @@ class JobInput(BaseModel):
     name: str = Field(description="server-made name of the stored input")
 
 
+class ResultWarningOut(ResultWarning):
+    """A sign that one method's result failed (docs/usage.md, Warnings): the pipeline's warning
+    plus the method it concerns."""
+
+    method: str = Field(description="backprojection, reed or shsas")
+
+
 class JobOut(BaseModel):
     """A reconstruction job as the API shows it."""
 
@@ -52,6 +60,9 @@ class JobOut(BaseModel):
     spec: dict[str, Any]
     input: JobInput
     metrics: dict[str, dict[str, float]] | None = Field(None, description="per-method metrics summary")
+    warnings: list[ResultWarningOut] = Field(
+        default_factory=list, description="signs that a method's result failed although the job succeeded "
+        "(collapsed volume, cloud filling the scene box, data loss that did not fall); empty when none")
     artifacts: list[ArtifactLink]
     links: dict[str, str]
 
@@ -66,7 +77,7 @@ class JobOut(BaseModel):
             created_at=iso(job.created_at), started_at=iso(job.started_at), finished_at=iso(job.finished_at),
             updated_at=iso(job.updated_at), error=job.error, spec=job.spec,
             input=JobInput(digest=job.input_digest, bytes=job.input_bytes, name=job.input_name),
-            metrics=job.metrics,
+            metrics=job.metrics, warnings=[ResultWarningOut.model_validate(w) for w in job.warnings],
             artifacts=[ArtifactLink(name=a, url=f"{url}/artifacts/{a}") for a in job.artifacts],
             links={"self": url, "cancel": f"{url}/cancel", "artifacts": f"{url}/artifacts"},
         )

@@ -12,7 +12,9 @@
 4. extraction at τ (``spec.threshold`` or the rule of :mod:`shsas_core.extract`) → point cloud and
    mesh; export to PLY/GLB/NPY;
 5. metrics against the ground truth when the survey has one (protocol of :mod:`shsas_core.metrics`);
-6. ``report.json`` + ``report.html``.
+6. checks for a failed result (:mod:`shsas_core.diagnostics`: collapsed or box-filling volume, a
+   neural fit whose data loss did not fall) → ``MethodReport.warnings``;
+7. ``report.json`` + ``report.html``.
 
 Idempotent and resumable: every artifact name is fixed (``{method}_volume.npy``,
 ``{method}_pointcloud.ply``, ``{method}_mesh.ply``, ``{method}_mesh.glb``, ``report.json``, ...),
@@ -37,6 +39,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, Field
 
+from .diagnostics import ResultWarning, fit_warnings, volume_warnings
 from .errors import ShsasError
 from .export import (
     read_volume_npy,
@@ -83,6 +86,8 @@ class PipelineResult(BaseModel):
     report_json: str
     report_html: str
     timings: dict[str, float] = Field(description="seconds per stage")
+    warnings: dict[str, list[ResultWarning]] = Field(
+        default_factory=dict, description="method -> signs that its result failed (empty list: none found)")
 
 
 def artifact_names(method: str) -> dict[str, str]:
@@ -225,7 +230,8 @@ def run(
         metrics[r.method].update({"threshold": r.threshold, "points": float(r.points),
                                   "faces": float(r.faces), "seconds": r.seconds})
     return PipelineResult(out_dir=str(out), artifacts=artifacts, metrics=metrics,
-                          report_json=str(json_path), report_html=str(html_path), timings=timings)
+                          report_json=str(json_path), report_html=str(html_path), timings=timings,
+                          warnings=report.warnings())
 
 
 def _rewrite_json(report: Report, path: Path) -> None:
@@ -322,17 +328,21 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
         rep = MethodReport.model_validate_json(done.read_text())
         vol = read_volume_npy(out / names["volume"])
         fit = _load_fit(ckpt)
+        # the fit is not redone, so its verdict carries over; the volume's checks are cheap and
+        # redone, so a run finished before they existed (or with other limits) is checked too
+        kept = [w for w in rep.warnings if w.code == "loss_not_falling"]
         if _read_json(ckpt / "extract.json") == extract_key:
             import trimesh
 
             mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
+            rep = rep.model_copy(update={"warnings": volume_warnings(vol, rep.threshold, rep.points) + kept})
             progress(1.0, method, {"cached": 1.0})
             return rep, vol, mesh_, fit
         # reconstruction done, extraction settings (or code) changed: extract again, no refit
         progress(0.9, method, {"cached": 1.0})
         t0 = time.perf_counter() - rep.seconds
         rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, rep.loss_curve,
-                             rep.signal_errors, progress, should_stop)
+                             rep.signal_errors, progress, should_stop, kept)
         return rep, vol, mesh_, fit
 
     ckpt.mkdir(parents=True, exist_ok=True)
@@ -340,12 +350,14 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     loss_curve: list[tuple[int, float]] = []
     signal_errs: dict[str, float] = {}
     fit_fig: SignalFit | None = None
+    fit_warns: list[ResultWarning] = []
     if method == "backprojection":
         vol = image(sub_progress(progress, 0.0, 0.8))
     else:
         field, result = _fit_neural(method, spec, survey, s_pd, train_idx, image, device, ckpt,
                                     sub_progress(progress, 0.0, 0.8), should_stop)
         loss_curve = _loss_curve(result)
+        fit_warns = fit_warnings(getattr(result, "data_loss_history", None) or [])
         check_stop(should_stop)
         progress(0.8, method, {"stage": 1.0})
         vol = field_volume(field, grid, name=f"{method} |sigma_DC|")
@@ -366,15 +378,16 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     check_stop(should_stop)
     progress(0.9, method, {})
     rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, loss_curve,
-                         signal_errs, progress, should_stop)
+                         signal_errs, progress, should_stop, fit_warns)
     return rep, vol, mesh_, fit_fig
 
 
 def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth | None, out: Path,
             ckpt: Path, names: dict[str, str], extract_key: dict[str, Any], t0: float,
             loss_curve: list[tuple[int, float]], signal_errs: dict[str, float], progress: ProgressFn,
-            should_stop: StopFn) -> tuple[MethodReport, Any]:
-    """Extract, export, score, and mark the method done."""
+            should_stop: StopFn, fit_warns: list[ResultWarning] | None = None) -> tuple[MethodReport, Any]:
+    """Extract, export, score, check for a failed result (the volume's checks plus
+    ``fit_warns`` from the fit), and mark the method done."""
     from .export import write_text
 
     ecfg = ExtractConfig(threshold=spec.threshold)
@@ -392,7 +405,8 @@ def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth 
     rep = MethodReport(method=method, sh_degree=sh_degree_of(method, spec), threshold=tau,
                        points=len(cloud), faces=len(mesh_.faces), seconds=time.perf_counter() - t0,
                        metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
-                       artifacts=names, origin_offset=glb["origin_offset"])
+                       artifacts=names, origin_offset=glb["origin_offset"],
+                       warnings=volume_warnings(vol, tau, len(cloud)) + list(fit_warns or []))
     write_json(extract_key, ckpt / "extract.json")
     write_text(rep.model_dump_json(indent=2), ckpt / "done.json")
     progress(1.0, method, {})

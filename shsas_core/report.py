@@ -4,7 +4,8 @@
 The HTML embeds every figure as a base64 PNG (one file, nothing to lose when it is downloaded
 from the service): maximum-intensity projections of each method's volume along x, y and z,
 rendered views of the extracted meshes beside the ground truth, loss curves of the neural
-methods, measured vs. predicted signals for a few pings, and the metrics table.
+methods, measured vs. predicted signals for a few pings, and the metrics table. A method whose
+result looks failed (:mod:`shsas_core.diagnostics`) gets a red box at the top of the page.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from . import __version__
+from .diagnostics import ResultWarning
 from .spec import ReconstructionSpec
 from .volume import Volume
 
@@ -67,6 +69,9 @@ class MethodReport(BaseModel):
     artifacts: dict[str, str] = Field(default_factory=dict, description="kind -> file name in out_dir")
     origin_offset: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0],
                                        description="GLB coordinates + offset = survey frame, m")
+    # default empty: done.json files written before the checks existed still load
+    warnings: list[ResultWarning] = Field(default_factory=list,
+                                          description="signs that this result failed (shsas_core.diagnostics)")
 
 
 class Report(BaseModel):
@@ -89,6 +94,10 @@ class Report(BaseModel):
         """``{method: {metric: value}}`` with undefined values as NaN."""
         return {m.method: {k: (math.nan if v is None else float(v)) for k, v in m.metrics.items()}
                 for m in self.methods}
+
+    def warnings(self) -> dict[str, list[ResultWarning]]:
+        """``{method: [warning, ...]}`` for every method (empty lists when nothing was found)."""
+        return {m.method: list(m.warnings) for m in self.methods}
 
 
 @dataclasses.dataclass
@@ -263,6 +272,22 @@ def metrics_table_html(report: Report) -> str:
     return f"<table><tr><th>method</th><th>output</th>{head}</tr>{''.join(rows)}</table>"
 
 
+def warnings_html(report: Report) -> str:
+    """One coloured box per method with warnings (empty string when there are none)."""
+    esc = html.escape
+    boxes = []
+    for m in report.methods:
+        if not m.warnings:
+            continue
+        items = "".join(f"<li><b>{esc(w.code)}</b>: {esc(w.message)} (measure {w.measure:.3g}, "
+                        f"limit {w.limit:.3g})</li>" for w in m.warnings)
+        boxes.append(f"<div class='warn'><b>{esc(m.method)}: this result looks failed</b><ul>{items}</ul></div>")
+    if not boxes:
+        return ""
+    return ("<h2>Warnings</h2>" + "".join(boxes)
+            + "<p><small>Checks and limits: docs/usage.md, “Warnings”.</small></p>")
+
+
 def render_html(report: Report, figures: ReportFigures) -> str:
     """The report page: summary, metrics, figures. Images are embedded as base64 PNG."""
     esc = html.escape
@@ -271,10 +296,14 @@ def render_html(report: Report, figures: ReportFigures) -> str:
         "body{font-family:system-ui,sans-serif;margin:2em;max-width:1200px}",
         "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 8px;"
         "text-align:right}th{background:#eee}img{max-width:100%;display:block;margin:0.5em 0}"
-        "code{background:#f4f4f4}",
+        "code{background:#f4f4f4}"
+        ".warn{background:#fdecea;border:2px solid #d93025;border-radius:4px;padding:0.5em 1em;"
+        "margin:0.5em 0}",
         "</style></head><body>",
         f"<h1>shsas reconstruction report</h1><p>shsas {esc(report.shsas_version)}, "
         f"{esc(report.created_utc)}</p>",
+        # first thing after the title: a failed result must not pass for a good one
+        warnings_html(report),
         "<h2>Survey</h2><table>",
     ]
     for k in ("platform", "pings", "samples_per_ping", "band_hz", "sound_speed_m_s", "range_resolution_m"):
@@ -282,12 +311,13 @@ def render_html(report: Report, figures: ReportFigures) -> str:
             parts.append(f"<tr><th>{esc(k)}</th><td>{esc(str(report.survey[k]))}</td></tr>")
     parts.append("</table><h2>Spec</h2><pre>" + esc(report.spec.model_dump_json(indent=1)) + "</pre>")
     parts.append("<h2>Methods</h2><table><tr><th>method</th><th>L</th><th>τ</th><th>points</th>"
-                 "<th>faces</th><th>seconds</th><th>files</th></tr>")
+                 "<th>faces</th><th>seconds</th><th>warnings</th><th>files</th></tr>")
     for m in report.methods:
         files = " ".join(f"<a href='{esc(v)}'>{esc(k)}</a>" for k, v in m.artifacts.items())
+        warn = ", ".join(esc(w.code) for w in m.warnings) or "none"
         parts.append(f"<tr><td>{esc(m.method)}</td><td>{'' if m.sh_degree is None else m.sh_degree}</td>"
                      f"<td>{m.threshold:.3f}</td><td>{m.points}</td><td>{m.faces}</td>"
-                     f"<td>{m.seconds:.1f}</td><td>{files}</td></tr>")
+                     f"<td>{m.seconds:.1f}</td><td>{warn}</td><td>{files}</td></tr>")
     parts.append("</table>")
     if report.ground_truth and any(m.metrics for m in report.methods):
         parts.append("<h2>Metrics</h2>" + metrics_table_html(report))

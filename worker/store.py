@@ -21,7 +21,7 @@ import time
 import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import sqlalchemy as sa
@@ -74,6 +74,10 @@ api_keys = sa.Table(
 
 #: The owner of jobs submitted without a key (embedded default, loopback clients only).
 LOCAL_OWNER = "local"
+#: Key under which a finished job's result warnings ride in the ``metrics`` JSON column (method
+#: names never start with "_"), so existing databases need no new column; :meth:`Job.from_row`
+#: takes it out again, and rows written before it existed read as "no warnings".
+WARNINGS_KEY = "_warnings"
 KEY_PREFIX = "shsas_"
 
 
@@ -105,6 +109,9 @@ class Job:
     metrics: dict[str, dict[str, float]] | None
     idempotency_key: str | None
     request_digest: str | None
+    #: signs that the result failed: ``{"method", "code", "message", "measure", "limit"}`` each
+    #: (``shsas_core.diagnostics.ResultWarning`` plus the method); stored inside ``metrics``
+    warnings: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod
     def from_row(cls, row: sa.Row) -> Job:
@@ -112,7 +119,9 @@ class Job:
         m["spec"] = json.loads(m["spec"])
         m["live_metrics"] = json.loads(m["live_metrics"]) if m["live_metrics"] else {}
         m["artifacts"] = json.loads(m["artifacts"] or "[]")
-        m["metrics"] = json.loads(m["metrics"]) if m["metrics"] else None
+        metrics = json.loads(m["metrics"]) if m["metrics"] else None
+        m["warnings"] = list(metrics.pop(WARNINGS_KEY, None) or []) if metrics else []
+        m["metrics"] = metrics
         m["cancel_requested"] = bool(m["cancel_requested"])
         return cls(**m)
 
@@ -364,8 +373,12 @@ class JobStore:
             return bool(conn.execute(sa.select(jobs.c.cancel_requested).where(jobs.c.id == job_id)).scalar())
 
     def finish(self, job_id: str, worker_id: str, status: str, *, error: str | None = None,
-               artifacts: list[str] | None = None, metrics: dict | None = None) -> bool:
-        """Move a running job this worker leases to a terminal status. False if the lease was lost."""
+               artifacts: list[str] | None = None, metrics: dict | None = None,
+               warnings: list[dict[str, Any]] | None = None) -> bool:
+        """Move a running job this worker leases to a terminal status. False if the lease was lost.
+
+        ``warnings`` (see :attr:`Job.warnings`) are stored with the metrics.
+        """
         if status not in TERMINAL:
             raise ValueError(f"not a terminal status: {status}")
         now = time.time()
@@ -375,6 +388,8 @@ class JobStore:
             values["progress"] = 1.0
         if artifacts is not None:
             values["artifacts"] = json.dumps(artifacts)
+        if warnings:
+            metrics = {**(metrics or {}), WARNINGS_KEY: warnings}
         if metrics is not None:
             values["metrics"] = json.dumps(metrics)
         with self._tx() as conn:

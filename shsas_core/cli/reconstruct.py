@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Mapping
+import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import ShsasError
+
+if TYPE_CHECKING:
+    from ..diagnostics import ResultWarning
 
 METHOD_HELP = "comma-separated: backprojection, reed (isotropic neural, SH degree 0), shsas (SH degree --sh-degree)"
 
@@ -107,6 +112,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Re-running with the same --out resumes: finished methods are skipped.",
         epilog="Outputs in DIR: {method}_volume.npy/.json, {method}_pointcloud.ply (vertex property "
         "scalar_magnitude), {method}_mesh.ply, {method}_mesh.glb, report.json, report.html. "
+        "A result that looks failed (collapsed volume, cloud filling the scene box, data loss that did "
+        "not fall) prints one line 'warning: METHOD: ... (MEASURE vs limit LIMIT)' on stderr and is "
+        "flagged in the report; the exit code stays 0, since the job ran (docs/usage.md, Warnings). "
         "Example: shsas reconstruct survey.h5 --methods backprojection,shsas --iters 2000 --out out/")
     p.add_argument("survey", help="survey file (canonical .h5, AirSAS folder/.zip/.pkl, SVSS .hdf5)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (created; reused to resume)")
@@ -130,16 +138,27 @@ def run(args: argparse.Namespace) -> int:
 
 
 def print_result(result) -> None:
-    """The metrics table (when there are metrics) and where the outputs are."""
+    """The metrics table (when there are metrics), warnings about failed-looking results (stderr)
+    and where the outputs are."""
     con = console()
     if any(k.startswith(("pc_", "fixed_", "mesh_")) for m in result.metrics.values() for k in m):
         con.print(metrics_table(result.metrics))
     else:
         con.print("no ground truth in the survey: no geometry metrics")
+    print_warnings(result.warnings)
     out = Path(result.out_dir)
     con.print(f"outputs in [bold]{out}[/bold]: {', '.join(result.artifacts)}")
     con.print(f"report: [bold]{result.report_html}[/bold]")
     con.print("timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in result.timings.items()))
+
+
+def print_warnings(warnings: Mapping[str, Sequence[ResultWarning]]) -> None:
+    """One line ``warning: METHOD: MESSAGE (MEASURE vs limit LIMIT)`` per warning on stderr
+    (plain text: a log or grep reads it as it is)."""
+    sys.stdout.flush()  # keep the order of the table and the warnings when both go to one terminal
+    for method, found in warnings.items():
+        for w in found:
+            print(f"warning: {w.line(method)}", file=sys.stderr)
 
 
 def console():

@@ -24,9 +24,12 @@ def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     rc = main(["reconstruct", str(path), "--methods", "backprojection", "--grid", "20", "--device", "cpu",
                "--out", str(out), "--quiet"])
     assert rc == 0
-    text = capsys.readouterr().out
+    cap = capsys.readouterr()
+    text = cap.out
     assert "backprojection" in text and "report.html" in text and "Chamfer" in text
+    assert "warning:" not in cap.err  # a good backprojection raises nothing
     rep = json.loads((out / "report.json").read_text())
+    assert rep["methods"][0]["warnings"] == []
     assert rep["spec"]["grid"] == 20 and rep["spec"]["methods"] == ["backprojection"]
     # evaluate the folder against the survey: same numbers as the pipeline computed
     rc = main(["evaluate", str(out), "--gt", str(path), "--json"])
@@ -47,6 +50,32 @@ def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     assert rc == 0
     pc = json.loads(capsys.readouterr().out)["backprojection_pointcloud"]
     assert np.isclose(pc["pc_iou"], rep["methods"][0]["metrics"]["pc_iou"])
+
+
+def test_a_failed_result_prints_a_warning_and_reaches_the_report(survey_file, tmp_path, capsys, monkeypatch):
+    """A survey of silence (a recording with the transmitter off) backprojects to a volume of
+    zeros: the run completes, but says the result collapsed."""
+    import dataclasses
+
+    monkeypatch.setenv("COLUMNS", "200")
+    _, survey = survey_file
+    silent = write_survey(dataclasses.replace(survey, samples=np.zeros_like(survey.samples)), tmp_path / "silent.h5")
+    out = tmp_path / "out"
+    rc = main(["reconstruct", str(silent), "--methods", "backprojection", "--grid", "12", "--device", "cpu",
+               "--out", str(out), "--quiet"])
+    assert rc == 0  # the job ran; its result is flagged, not failed
+    cap = capsys.readouterr()
+    lines = [ln for ln in cap.err.splitlines() if ln.startswith("warning: ")]
+    assert lines == ["warning: backprojection: the volume is near-constant (relative spread (max-min)/max "
+                     "of |values|): nothing was reconstructed (0 vs limit 0.01)"], cap.err
+    assert "warning:" not in cap.out
+    rep = json.loads((out / "report.json").read_text())
+    assert [(w["code"], w["measure"], w["limit"]) for w in rep["methods"][0]["warnings"]] == [("collapsed", 0.0, 0.01)]
+    assert "class='warn'" in (out / "report.html").read_text()
+    # a resumed run (nothing recomputed) says it again
+    assert main(["reconstruct", str(silent), "--methods", "backprojection", "--grid", "12", "--device", "cpu",
+                 "--out", str(out), "--quiet"]) == 0
+    assert capsys.readouterr().err.count("warning: backprojection:") == 1
 
 
 @pytest.mark.parametrize("argv, needle", [

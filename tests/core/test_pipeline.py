@@ -46,6 +46,7 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     assert len(pc["x"]) > 0 and len(mesh.faces) > 0 and len(glb.geometry) == 1
     rep = load_report(res.report_json)
     assert rep.methods[0].method == "backprojection"
+    assert res.warnings == {"backprojection": []} and rep.methods[0].warnings == []  # a good image
     # the image lands on the 8 cm sphere: centred on it, Chamfer-L1 of a few voxels
     m = res.metrics["backprojection"]
     pts = np.stack([pc["x"], pc["y"], pc["z"]], 1)
@@ -148,3 +149,20 @@ def test_spec_target_reaches_the_trainer():
     assert ReconstructionSpec().target == "coherent"
     assert train_config(ReconstructionSpec()).target == "coherent"
     assert train_config(ReconstructionSpec(target="envelope")).target == "envelope"
+
+
+@pytest.mark.slow  # 100 iterations of a tiny fit: ~10 s on 2 cores, longer when they are shared
+def test_a_fit_that_learns_nothing_reports_it(tmp_path, sphere_survey):
+    """A learning rate of 1e-7 leaves the field at its initial value: the volume is flat and the
+    data loss does not fall, and report.json, done.json and the result all say so."""
+    from shsas_core.diagnostics import LOSS_MIN_ITERS
+
+    spec = ReconstructionSpec(methods=["reed"], iters=LOSS_MIN_ITERS, lr=1e-7, grid=12, num_bins=8, num_rays=8,
+                              encoding="small", target="envelope", device="cpu")
+    res = run(spec, sphere_survey, tmp_path)
+    codes = [w.code for w in res.warnings["reed"]]
+    assert codes == ["collapsed", "loss_not_falling"], res.warnings
+    assert [w["code"] for w in json.loads((tmp_path / "report.json").read_text())["methods"][0]["warnings"]] == codes
+    # re-extracting at another τ keeps the fit's verdict and checks the volume again
+    res2 = run(spec.model_copy(update={"threshold": 0.5}), sphere_survey, tmp_path)
+    assert [w.code for w in res2.warnings["reed"]] == codes

@@ -12,6 +12,7 @@ from shsas_core.report import (
     ReportFigures,
     SignalFit,
     load_report,
+    render_html,
     write_report,
 )
 from shsas_core.spec import ReconstructionSpec
@@ -58,3 +59,26 @@ def test_report_json_and_html_with_decodable_images(tmp_path):
     assert "Chamfer-L2" in page and "1.000e-04" in page
     # links to artifacts are relative names in the same folder
     assert "href='backprojection_mesh.ply'" in page
+
+
+def test_warnings_reach_report_json_and_a_box_in_the_html(tmp_path):
+    from shsas_core.diagnostics import ResultWarning
+
+    warn = ResultWarning(code="box_filling", message="the extracted cloud fills the scene box",
+                         measure=0.52, limit=0.4)
+    rep = Report(spec=ReconstructionSpec(methods=["backprojection", "reed"]), survey={}, ground_truth=False,
+                 methods=[MethodReport(method="backprojection", threshold=0.2, points=5, faces=8, seconds=1.0),
+                          MethodReport(method="reed", sh_degree=0, threshold=0.2, points=9, faces=8, seconds=1.0,
+                                       warnings=[warn])])
+    jp, hp = write_report(rep, ReportFigures(), tmp_path)
+    back = load_report(jp)
+    assert back.warnings() == {"backprojection": [], "reed": [warn]}
+    page = open(hp, encoding="utf-8").read()
+    box = re.search(r"<div class='warn'>(.*?)</div>", page, re.S)
+    assert box and "reed" in box.group(1) and "box_filling" in box.group(1) and "0.52" in box.group(1)
+    assert page.index("class='warn'") < page.index("<h2>Survey</h2>")  # shown first
+    # a report without warnings shows no box, and done.json files from before the field still load
+    clean = back.model_copy(update={"methods": back.methods[:1]})
+    assert "class='warn'" not in render_html(clean, ReportFigures())
+    old = back.methods[0].model_dump(exclude={"warnings"})
+    assert MethodReport.model_validate(old).warnings == []

@@ -8,6 +8,7 @@ here runs in its own session and is killed (whole process group) by its fixture'
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 import socket
@@ -19,6 +20,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 from shsas_core.io import write_survey
@@ -86,8 +88,12 @@ def db_env(backend: str, pg: str | None) -> dict[str, str]:
     return {"SHSAS_DATABASE_URL": url, "SHSAS_DATABASE_SCHEMA": f"{schema}_{uuid.uuid4().hex[:6]}"}
 
 
-def write_tiny_survey(path: Path, **kw) -> Path:
-    write_survey(make_survey(**kw), path)
+def write_tiny_survey(path: Path, silent: bool = False, **kw) -> Path:
+    """A small random survey (``silent``: all samples zero, a recording with the transmitter off)."""
+    survey = make_survey(**kw)
+    if silent:
+        survey = dataclasses.replace(survey, samples=np.zeros_like(survey.samples))
+    write_survey(survey, path)
     return path
 
 

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from shsas_core.diagnostics import COLLAPSE_SPREAD_LIMIT
+
 from .conftest import FAST_TIMINGS, db_env, start_server, submit, wait_for, write_tiny_survey
 
 pytestmark = pytest.mark.service
@@ -67,6 +69,7 @@ def test_upload_poll_download_meshes(client, done_job) -> None:
     assert done["status"] == "succeeded", done
     assert done["progress"] == 1.0 and done["attempts"] == 1 and done["error"] is None
     assert done["started_at"] and done["finished_at"] and done["metrics"]
+    assert isinstance(done["warnings"], list)
     names = [a["name"] for a in done["artifacts"]]
     glb = next(n for n in names if n.endswith("_mesh.glb"))
     ply = next(n for n in names if n.endswith("_mesh.ply"))
@@ -80,6 +83,21 @@ def test_upload_poll_download_meshes(client, done_job) -> None:
     page = client.get("/reconstructions", params={"status": "succeeded"}).json()
     assert job["id"] in [j["id"] for j in page["items"]]
     assert client.get("/readyz").json()["checks"]["job_store"] == "ok"
+
+
+def test_status_carries_the_warnings_of_a_failed_looking_result(client, server) -> None:
+    silent = write_tiny_survey(server["data"].parent / "silent.h5", silent=True)  # backprojects to zeros
+    r = submit(client, silent, QUICK_SPEC)
+    assert r.status_code == 202, r.text
+    assert r.json()["warnings"] == []
+    done = wait_for(client, r.json()["id"], lambda j: j["status"] in ("succeeded", "failed"), 120, "job to finish")
+    assert done["status"] == "succeeded", done  # the job ran; its result is flagged
+    assert [(w["method"], w["code"], w["measure"], w["limit"]) for w in done["warnings"]] == [
+        ("backprojection", "collapsed", 0.0, COLLAPSE_SPREAD_LIMIT)]
+    assert "near-constant" in done["warnings"][0]["message"]
+    assert set(done["metrics"]) == {"backprojection"}
+    listed = client.get("/reconstructions", params={"status": "succeeded"}).json()["items"]
+    assert next(j for j in listed if j["id"] == done["id"])["warnings"] == done["warnings"]
 
 
 def test_artifact_range_etag_and_names(client, done_job) -> None:

@@ -75,6 +75,16 @@ def test_success_writes_artifacts_and_removes_stale_tmp(env) -> None:
     assert execute_job(store, settings, job.id, "w2") == "skipped"  # a duplicate delivery does nothing
 
 
+def test_a_failed_looking_result_succeeds_with_warnings(env, tmp_path: Path) -> None:
+    settings, store = env
+    silent = write_tiny_survey(tmp_path / "silent.h5", silent=True)  # backprojects to zeros
+    job = queue_job(settings, store, QUICK, survey=silent)
+    assert execute_job(store, settings, job.id, "w1") == "succeeded"
+    done = store.get(job.id)
+    assert [(w["method"], w["code"], w["measure"]) for w in done.warnings] == [("backprojection", "collapsed", 0.0)]
+    assert set(done.metrics) == {"backprojection"}  # the metrics keep their shape
+
+
 def test_bad_input_fails_with_the_validation_message(env, tmp_path: Path) -> None:
     settings, store = env
     bad = tmp_path / "bad.h5"

@@ -54,6 +54,17 @@ def test_claim_is_exclusive_under_concurrency(store: JobStore) -> None:
     done = store.get(job.id)
     assert done.status == "succeeded" and done.progress == 1.0 and done.artifacts == ["a.ply"]
     assert done.metrics == {"m": {"x": 1.0}} and done.lease_owner is None
+    assert done.warnings == []  # a row finished without warnings (as every row before they existed)
+
+
+def test_warnings_ride_with_the_metrics(store: JobStore) -> None:
+    job, _ = new_job(store)
+    assert store.claim(job.id, "w") is not None
+    warn = {"method": "reed", "code": "box_filling", "message": "fills", "measure": 0.5, "limit": 0.4}
+    assert store.finish(job.id, "w", "succeeded", metrics={"reed": {"points": 9.0}}, warnings=[warn])
+    done = store.get(job.id)
+    assert done.metrics == {"reed": {"points": 9.0}} and done.warnings == [warn]
+    assert [j.warnings for j in store.list_jobs(job.owner)[0] if j.id == job.id] == [[warn]]
 
 
 def test_idempotency_same_body_same_job_different_body_conflict(store: JobStore) -> None:
