@@ -41,6 +41,9 @@ class Settings(BaseSettings):
     lease_timeout_s: float = Field(60.0, gt=0, description="a running job whose heartbeat is older is re-queued")
     reconcile_interval_s: float = Field(10.0, gt=0, description="how often stale leases are looked for")
     max_attempts: int = Field(3, ge=1, description="deliveries before a repeatedly lost job is failed")
+    redispatch_after_s: float = Field(
+        600.0, gt=0, description="a queued job not picked up for this long is sent to the broker again "
+        "(its message may be lost); duplicates are harmless, a job runs once")
     local_poll_interval_s: float = Field(0.5, gt=0, description="embedded worker: how often it looks for queued jobs")
     page_size_max: int = Field(100, ge=1, le=1000)
 
