@@ -152,8 +152,9 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                         raise UploadError(409, f"Idempotency-Key already used for job {prior.id} "
                                                "with a different survey or spec")
                     return _accepted(prior, request)
-            checked = await to_thread.run_sync(validate_in_child, up.path, settings.validate_memory_bytes,
-                                               settings.validate_timeout_s)
+            checked = await to_thread.run_sync(lambda: validate_in_child(
+                up.path, settings.validate_memory_bytes, settings.validate_timeout_s, spec=spec_json,
+                worker_memory_bytes=settings.worker_memory_bytes))
             job_id = uuid.uuid4().hex
             in_dir, _ = job_paths(settings, job_id)
             in_dir.mkdir(parents=True)
