@@ -159,7 +159,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
             upload_path = up.path
             checked = await to_thread.run_sync(lambda: validate_in_child(
                 upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
-                display_name=up.display_name))
+                display_name=up.display_name, spec=spec_json, worker_memory_bytes=settings.worker_memory_bytes))
             job_id = uuid.uuid4().hex
             in_dir, _ = job_paths(settings, job_id)
             in_dir.mkdir(parents=True)

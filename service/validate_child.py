@@ -32,7 +32,18 @@ def _scan_samples_finite(path: str) -> None:
                                             "drop or repair the bad pings before upload")
 
 
-def validate(path: str) -> dict:
+def _check_memory(survey, job: tuple[int, str] | None) -> None:
+    """Refuse a job the workers could not hold, from the declared sizes alone."""
+    if job is None:
+        return
+    from shsas_core.memory import check_job_memory
+    from shsas_core.spec import ReconstructionSpec
+
+    budget, spec_json = job
+    check_job_memory(survey, ReconstructionSpec.model_validate_json(spec_json), budget)
+
+
+def validate(path: str, job: tuple[int, str] | None = None) -> dict:
     import numpy as np
 
     from shsas_core.importers import detect_format, load_survey
@@ -42,8 +53,10 @@ def validate(path: str) -> dict:
     if fmt == "shsas":
         # Header and geometry first (cheap, checks every shape), then the samples in blocks.
         survey = load_survey(path, fmt, load_samples=False)
+        _check_memory(survey, job)
         _scan_samples_finite(path)
     else:
+        _check_memory(load_survey(path, fmt, load_samples=False), job)
         survey = load_survey(path, fmt)
         if survey.samples is not None and not np.all(np.isfinite(survey.samples)):
             from shsas_core.errors import SurveyValidationError
@@ -60,6 +73,8 @@ def validate(path: str) -> dict:
 
 def main() -> int:
     path, memory_bytes, cpu_s = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    # Optional: the worker memory budget and the job's spec (JSON), to refuse jobs too large to run.
+    job = (int(sys.argv[4]), sys.argv[5]) if len(sys.argv) > 5 else None
     import resource
 
     # Limits first, before numpy/h5py allocate anything.
@@ -82,9 +97,9 @@ def main() -> int:
         from shsas_core.errors import ShsasError
 
         try:
-            out = {"ok": True, **validate(path)}
+            out = {"ok": True, **validate(path, job)}
         except ShsasError as exc:
-            out = {"ok": False, "status": 422, "error": str(exc)}
+            out = {"ok": False, "status": getattr(exc, "http_status", 422), "error": str(exc)}
         except ImportError as exc:
             out = {"ok": False, "status": 422,
                    "error": f"file: this format needs a reader that is not installed in this build ({exc})"}

@@ -31,27 +31,35 @@ def name_the_upload(message: str, path: Path, display_name: str) -> str:
 
 
 def validate_in_child(path: Path, memory_bytes: int, timeout_s: float, *,
-                      display_name: str | None = None) -> dict:
-    """Validate ``path`` in a child; return ``{"format", "summary"}``.
+                      display_name: str | None = None, spec: dict | None = None,
+                      worker_memory_bytes: int | None = None) -> dict:
+    """Validate ``path`` in a child; return ``{"format", "summary"}``. With ``spec`` and
+    ``worker_memory_bytes``, the child also refuses a job that would need more memory than that
+    (checked from the declared sizes, before any samples are read).
 
     ``display_name`` (the client's file name) replaces the server's path in every message.
 
     Raises:
-        UploadError: 422 with the validator's message, 413 past the memory limit, 422 on timeout.
+        UploadError: 422 with the validator's message, 413 past the memory limit or over the
+        worker memory budget, 422 on timeout.
     """
     try:
-        return _validate_in_child(path, memory_bytes, timeout_s)
+        return _validate_in_child(path, memory_bytes, timeout_s, spec, worker_memory_bytes)
     except UploadError as exc:
         raise UploadError(exc.status, name_the_upload(exc.message, path, display_name or path.name)) from None
 
 
-def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float) -> dict:
+def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float, spec: dict | None,
+                       worker_memory_bytes: int | None) -> dict:
     env = {k: v for k, v in os.environ.items() if k in ("PATH", "PYTHONPATH", "HOME", "LANG", "TMPDIR")}
     # One thread each: the limit is per process and BLAS pools reserve address space per thread.
     env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", HDF5_USE_FILE_LOCKING="FALSE")
+    args = [str(path), str(memory_bytes), str(int(timeout_s) + 1)]
+    if spec is not None and worker_memory_bytes is not None:
+        args += [str(worker_memory_bytes), json.dumps(spec)]
     try:
         proc = subprocess.run(
-            [sys.executable, "-m", "service.validate_child", str(path), str(memory_bytes), str(int(timeout_s) + 1)],
+            [sys.executable, "-m", "service.validate_child", *args],
             capture_output=True, timeout=timeout_s, env=env, cwd=str(Path(__file__).resolve().parents[1]),
             check=False)
     except subprocess.TimeoutExpired:

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import __version__
 from .errors import SurveyValidationError, UnsafeFileError
+from .progress import StopFn, check_stop
 from .survey import (
     MAX_MESH_ELEMENTS,
     Survey,
@@ -31,6 +32,8 @@ SCHEMA_VERSION = 1
 
 _FLOAT = (np.float32, np.float64)
 _COMPLEX = (np.complex64, np.complex128)
+#: Samples are read in blocks of about this many bytes, checking ``should_stop`` between blocks.
+READ_BLOCK_BYTES = 64 * 1024**2
 
 
 def write_survey(survey: Survey, path: str | os.PathLike, *, compression: str | None = None) -> Path:
@@ -130,6 +133,36 @@ def _dataset(f: h5py.File, name: str, required: bool = True) -> h5py.Dataset | N
     return ds
 
 
+def _check_stored(ds: h5py.Dataset, name: str) -> None:
+    """Refuse a dataset whose data was never (fully) written: it reads as its fill value, so a
+    small file could declare gigabytes that a reader would allocate for nothing."""
+    if ds.size == 0:
+        return
+    if ds.chunks is None:
+        if ds.id.get_storage_size() == 0:
+            raise SurveyValidationError(name, f"declares shape {ds.shape} but the file stores none of its data",
+                                        "write the data into the dataset")
+        return
+    total = int(np.prod([-(-d // c) for d, c in zip(ds.shape, ds.chunks, strict=True)]))
+    stored = ds.id.get_num_chunks()
+    if stored < total:
+        raise SurveyValidationError(
+            name, f"declares shape {ds.shape} ({ds.size * ds.dtype.itemsize / 1e9:.3g} GB) but the file stores "
+            f"only {stored} of its {total} chunks; the rest were never written",
+            "write every ping's samples (a file cut short by its writer is not a survey)")
+
+
+def _read_samples(ds: h5py.Dataset, should_stop: StopFn | None) -> np.ndarray:
+    """The samples as float32/complex64, read block by block so a cancel lands within a block."""
+    n, t = ds.shape
+    out = np.empty((n, t), dtype=np.complex64 if ds.dtype.type in _COMPLEX else np.float32)
+    rows = max(1, READ_BLOCK_BYTES // max(t * ds.dtype.itemsize, 1))
+    for start in range(0, n, rows):
+        check_stop(should_stop)
+        out[start:start + rows] = ds[start:start + rows]  # converts float64/complex128 per block
+    return out
+
+
 def _check(ds: h5py.Dataset | None, name: str, shape: tuple[int | None, ...], kinds: tuple) -> None:
     if ds is None:
         return
@@ -143,13 +176,15 @@ def _check(ds: h5py.Dataset | None, name: str, shape: tuple[int | None, ...], ki
                                     f"convert it to one of {names} before writing")
 
 
-def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extras: bool = True) -> Survey:
+def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extras: bool = True,
+                should_stop: StopFn | None = None) -> Survey:
     """Read and validate a canonical survey file.
 
     Args:
         load_samples: False reads only metadata and geometry (fast for ``shsas info``);
             ``survey.samples`` is then None and ``survey.shape`` still holds (N, T).
         load_extras: also read ``/extras``.
+        should_stop: polled between blocks of samples; True raises ``Cancelled``.
 
     Raises:
         SurveyValidationError: any problem, with the field named.
@@ -162,7 +197,7 @@ def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extr
                                     "convert it first with `shsas convert`")
     try:
         with h5py.File(path, "r") as f:
-            return _read_open(f, load_samples, load_extras)
+            return _read_open(f, load_samples, load_extras, should_stop)
     except (SurveyValidationError, UnsafeFileError):
         raise
     except (OSError, KeyError, RuntimeError, ValueError) as exc:
@@ -171,7 +206,7 @@ def read_survey(path: str | os.PathLike, *, load_samples: bool = True, load_extr
             "the file may be truncated or corrupt", "copy or upload the whole file again; check its size") from None
 
 
-def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
+def _read_open(f: h5py.File, load_samples: bool, load_extras: bool, should_stop: StopFn | None) -> Survey:
     check_hdf5_safety(f)
     fmt = f.attrs.get("format")
     if isinstance(fmt, bytes):
@@ -201,6 +236,8 @@ def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
         raise SurveyValidationError("pings/samples", f"has dtype {samples.dtype}, expected float32 or complex64",
                                     "convert the samples to float32 (real) or complex64 before writing")
     n, t = (int(s) for s in samples.shape)
+    check_sizes(n, t, 1)  # before the storage check, which walks the chunk index
+    _check_stored(samples, "pings/samples")
     pulse = _dataset(f, "pulse/samples")
     assert pulse is not None
     _check(pulse, "pulse/samples", (None,), _FLOAT + _COMPLEX)
@@ -234,11 +271,12 @@ def _read_open(f: h5py.File, load_samples: bool, load_extras: bool) -> Survey:
             if ds.size > 4 * max(n * t, 1):
                 raise SurveyValidationError(f"extras/{k}", f"declares {ds.size} elements, too large for this survey",
                                             "extras hold at most 4 x pings x samples elements; drop this one")
+            _check_stored(ds, f"extras/{k}")
             extras[k] = ds[()]
     assert tx is not None and rx is not None and t0 is not None
     return Survey(
         tx=tx[()], rx=rx[()], t0=t0[()], meta=meta, pulse=pulse[()],
-        samples=samples[()] if load_samples else None,
+        samples=_read_samples(samples, should_stop) if load_samples else None,
         tx_dir=None if dirs["tx_dir"] is None else dirs["tx_dir"][()],
         rx_dir=None if dirs["rx_dir"] is None else dirs["rx_dir"][()],
         gt_vertices=verts, gt_faces=faces, extras=extras, shape=(n, t),

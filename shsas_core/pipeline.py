@@ -116,14 +116,36 @@ def holdout_split(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.nd
     return np.setdiff1d(np.arange(n), held), held
 
 
-def load_input(survey: Survey | str | os.PathLike) -> Survey:
+def load_input(survey: Survey | str | os.PathLike, spec: ReconstructionSpec | None = None,
+               memory_budget: int | None = None, should_stop: StopFn = never_stop) -> Survey:
+    """The survey with its samples, after checking the job fits ``memory_budget`` bytes.
+
+    The check uses the sizes a file declares, before its samples are read; canonical files are
+    then read block by block, polling ``should_stop``. Their ``/extras`` are not read: no stage
+    of the pipeline uses them.
+    """
+    from .memory import check_job_memory
+
     if isinstance(survey, Survey):
         if survey.samples is None:
             raise ShsasError("survey: samples were not loaded (read it with load_samples=True)")
+        if memory_budget is not None and spec is not None:
+            check_job_memory(survey, spec, memory_budget)
         return survey
-    from .importers import load_survey
+    from .importers import detect_format, load_survey
+    from .io import read_survey
 
-    return load_survey(survey)
+    fmt = detect_format(survey)
+    if fmt == "shsas":
+        header = read_survey(survey, load_samples=False, load_extras=False)
+    else:
+        header = load_survey(survey, fmt, load_samples=False)
+    if memory_budget is not None and spec is not None:
+        check_job_memory(header, spec, memory_budget)
+    check_stop(should_stop)
+    if fmt == "shsas":
+        return read_survey(survey, load_extras=False, should_stop=should_stop)
+    return load_survey(survey, fmt)
 
 
 def survey_fingerprint(survey: Survey) -> str:
@@ -143,6 +165,7 @@ def run(
     out_dir: str | os.PathLike,
     progress: ProgressFn = no_progress,
     should_stop: StopFn = never_stop,
+    memory_budget: int | None = None,
 ) -> PipelineResult:
     """Run a reconstruction job and write its artifacts into ``out_dir`` (see module doc).
 
@@ -151,11 +174,15 @@ def run(
         survey: a loaded :class:`Survey` or a path to any format ``shsas convert`` reads.
         out_dir: output folder (created); re-running in the same folder resumes.
         progress: ``progress(fraction of the whole job, stage, metrics)``.
-        should_stop: polled between and within steps; True cancels (raises ``Cancelled``).
+        should_stop: polled between and within steps, the loading of the samples included;
+            True cancels (raises ``Cancelled``).
+        memory_budget: bytes the job may use (:mod:`shsas_core.memory`); checked from the
+            survey's declared sizes before its samples are read. None: not checked.
     Returns:
         :class:`PipelineResult`.
     Raises:
-        ShsasError: bad input (survey, spec, device); Cancelled: on request.
+        ShsasError: bad input (survey, spec, device), ``MemoryBudgetError`` over the budget;
+        Cancelled: on request.
     """
     from .device import resolve_device
 
@@ -164,7 +191,8 @@ def run(
     out = Path(out_dir)
     device = resolve_device(spec.device)
     t = time.perf_counter()
-    survey = load_input(survey)
+    progress(0.0, "load", {})
+    survey = load_input(survey, spec, memory_budget, should_stop)
     timings["load"] = time.perf_counter() - t
     out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
     ckpt = out / "checkpoints"

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import time
 from functools import lru_cache
 
 from .settings import Settings
@@ -28,12 +29,40 @@ def dispatch(settings: Settings, job: Job) -> None:
                   retry_policy={"max_retries": 3, "interval_start": 0.2, "interval_step": 0.5})
 
 
+#: A key the reconcilers keep in the Redis broker. Finding it gone means Redis came back empty
+#: (restarted without persistence, flushed, failed over to an empty replica): every task message
+#: it held went with it, so every queued job must be sent again.
+BROKER_MARK_KEY = "shsas:broker-mark"
+
+
+def _is_redis(url: str) -> bool:
+    return url.startswith(("redis://", "rediss://", "unix://"))
+
+
+def broker_was_emptied(settings: Settings, timeout_s: float = 2.0) -> bool:
+    """True (for one caller) when the Redis broker lost its data since the mark was last set.
+
+    Also True the first time a broker is used, which only re-sends messages that are duplicates.
+    False in embedded mode and for other brokers (the age-based re-send covers those).
+    """
+    url = settings.broker_url or ""
+    if settings.embedded or not _is_redis(url):
+        return False
+    import redis
+
+    client = redis.Redis.from_url(url, socket_timeout=timeout_s, socket_connect_timeout=timeout_s)
+    try:
+        return bool(client.set(BROKER_MARK_KEY, repr(time.time()), nx=True))
+    finally:
+        client.close()
+
+
 def broker_ping(settings: Settings, timeout_s: float = 2.0) -> None:
     """Raise if the broker cannot be reached (embedded mode has none and always passes)."""
     if settings.embedded:
         return
     url = settings.broker_url or ""
-    if url.startswith(("redis://", "rediss://", "unix://")):
+    if _is_redis(url):
         import redis
 
         client = redis.Redis.from_url(url, socket_timeout=timeout_s, socket_connect_timeout=timeout_s)

@@ -5,21 +5,63 @@
 :class:`LocalWorkerSupervisor` (in the ``shsas serve`` process) starts that child with the
 ``spawn`` method, so torch and CUDA are only ever initialised in the child, and restarts it if
 it dies; the job it was running is re-queued by the reconciler once its lease goes stale.
+
+The child never outlives ``shsas serve``: serve stops it on SIGTERM/SIGINT, and when serve dies
+without a word (SIGKILL, OOM kill) the child gets SIGTERM from the kernel (Linux
+``PR_SET_PDEATHSIG``) or, elsewhere, notices its parent pid change; an orphan would otherwise
+keep claiming jobs beside the worker of the next ``shsas serve``.
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing as mp
+import os
 import signal
+import sys
 import threading
 import time
 
 log = logging.getLogger("shsas.local")
 
+#: How often the child checks that ``shsas serve`` is still its parent.
+PARENT_CHECK_S = 1.0
+#: After the parent is gone, how long the child may take to stop on its own before it is ended.
+ORPHAN_GRACE_S = 5.0
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
-def run_local_worker() -> None:
-    """Child-process entry point: poll, claim, run until SIGTERM."""
+
+def _die_with_parent(parent_pid: int) -> None:
+    """Ask Linux to send SIGTERM to this process when its parent dies (best effort)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0) != 0:
+            log.warning("prctl(PR_SET_PDEATHSIG) failed: errno %d", ctypes.get_errno())
+    except (OSError, AttributeError):
+        log.warning("prctl is unavailable; relying on the parent watch alone")
+    # The parent may have died before prctl took effect: then no signal will ever come.
+    if os.getppid() != parent_pid:
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def _watch_parent(parent_pid: int, stopping: threading.Event) -> None:
+    """Portable fallback of PR_SET_PDEATHSIG: stop once reparented, end the process if stuck."""
+    while not stopping.wait(PARENT_CHECK_S):
+        if os.getppid() != parent_pid:
+            break
+    else:
+        return
+    log.error("shsas serve (pid %d) is gone; the local worker stops", parent_pid)
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(ORPHAN_GRACE_S)
+    os._exit(1)  # the main thread did not stop in time (stuck in native code)
+
+
+def run_local_worker(parent_pid: int | None = None) -> None:
+    """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
     from .runner import execute_job, worker_id
     from .settings import get_settings
     from .store import JobStore
@@ -37,6 +79,10 @@ def run_local_worker() -> None:
 
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
+    if parent_pid is not None:
+        _die_with_parent(parent_pid)
+        threading.Thread(target=_watch_parent, args=(parent_pid, stopping), name="shsas-parent-watch",
+                         daemon=True).start()
     settings = get_settings()
     store = JobStore.from_settings(settings)
     owner = worker_id()
@@ -77,7 +123,8 @@ class LocalWorkerSupervisor:
         return self
 
     def _spawn(self) -> None:
-        self._proc = self._ctx.Process(target=run_local_worker, name="shsas-local-worker", daemon=False)
+        self._proc = self._ctx.Process(target=run_local_worker, args=(os.getpid(),), name="shsas-local-worker",
+                                       daemon=False)
         self._proc.start()
         log.info("started local worker pid %s", self._proc.pid)
 

@@ -164,7 +164,8 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
 
         spec = ReconstructionSpec.model_validate(job.spec)
         try:
-            result = run(spec, in_dir / job.input_name, out_dir, ctl.progress, ctl.should_stop)
+            result = run(spec, in_dir / job.input_name, out_dir, ctl.progress, ctl.should_stop,
+                         memory_budget=settings.worker_memory_bytes)
         except Cancelled:
             if ctl.lost_lease:
                 return "lost"  # the new owner works in this out_dir; leave it alone

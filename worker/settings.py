@@ -12,6 +12,8 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from shsas_core.memory import DEFAULT_FRACTION, default_memory_budget
+
 GiB = 1024**3
 
 
@@ -35,12 +37,20 @@ class Settings(BaseSettings):
     validate_memory_bytes: int = Field(4 * GiB, ge=512 * 1024**2,
                                        description="address-space limit of the survey validation process")
     validate_timeout_s: float = Field(300.0, gt=0, description="time limit of the survey validation process")
+    worker_memory_bytes: int = Field(
+        default_factory=default_memory_budget, ge=256 * 1024**2,
+        description="memory a job may need (estimated from the survey's declared sizes and the spec); "
+        f"larger jobs get 413 at upload and fail in the worker before loading. Unset: {DEFAULT_FRACTION:.0%} "
+        "of the memory of the machine (or container) reading the setting")
     job_soft_time_limit_s: float = Field(6 * 3600.0, gt=0, description="a job past this is stopped and failed")
     job_hard_time_limit_s: float = Field(6 * 3600.0 + 300, gt=0, description="the worker child is killed past this")
     heartbeat_interval_s: float = Field(5.0, gt=0, description="how often a running job refreshes its lease")
     lease_timeout_s: float = Field(60.0, gt=0, description="a running job whose heartbeat is older is re-queued")
     reconcile_interval_s: float = Field(10.0, gt=0, description="how often stale leases are looked for")
     max_attempts: int = Field(3, ge=1, description="deliveries before a repeatedly lost job is failed")
+    redispatch_after_s: float = Field(
+        600.0, gt=0, description="a queued job not picked up for this long is sent to the broker again "
+        "(its message may be lost); duplicates are harmless, a job runs once")
     local_poll_interval_s: float = Field(0.5, gt=0, description="embedded worker: how often it looks for queued jobs")
     page_size_max: int = Field(100, ge=1, le=1000)
 

@@ -424,15 +424,22 @@ class JobStore:
         return requeued, failed
 
     def queued_older_than(self, age_s: float) -> list[Job]:
-        """Queued jobs created more than ``age_s`` ago (the reconciler re-sends their messages)."""
+        """Queued jobs not created, re-queued or re-sent for ``age_s`` seconds, oldest first (their
+        broker message may be lost; the reconciler sends them again)."""
         cutoff = time.time() - age_s
         with self.engine.connect() as conn:
-            rows = conn.execute(jobs.select().where(jobs.c.status == "queued", jobs.c.updated_at < cutoff))
+            rows = conn.execute(jobs.select().where(jobs.c.status == "queued", jobs.c.updated_at < cutoff)
+                                .order_by(jobs.c.created_at, jobs.c.id))
             return [Job.from_row(r) for r in rows]
 
-    def touch(self, job_id: str) -> None:
+    def mark_redispatched(self, job: Job) -> bool:
+        """Take the right to send ``job`` to the broker again: True for exactly one caller among
+        concurrent reconcilers (the row must still be queued and unchanged since it was read)."""
         with self._tx() as conn:
-            conn.execute(jobs.update().where(jobs.c.id == job_id).values(updated_at=time.time()))
+            res = conn.execute(jobs.update().where(jobs.c.id == job.id, jobs.c.status == "queued",
+                                                   jobs.c.updated_at == job.updated_at)
+                               .values(updated_at=time.time()))
+        return res.rowcount == 1
 
     # ---- API keys -----------------------------------------------------------------------------
     def create_key(self, name: str) -> tuple[ApiKey, str]:

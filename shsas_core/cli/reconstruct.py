@@ -124,13 +124,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..memory import memory_budget
     from ..pipeline import run as run_pipeline
     from ..progress import TqdmProgress
 
     spec = spec_from_args(args)
+    budget = memory_budget()
     bar = TqdmProgress(disable=args.quiet)
     try:
-        result = run_pipeline(spec, args.survey, Path(args.out), progress=bar)
+        result = run_pipeline(spec, args.survey, Path(args.out), progress=bar, memory_budget=budget)
     finally:
         bar.close()
     print_result(result)

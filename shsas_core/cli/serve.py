@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -46,13 +47,22 @@ def run(args: argparse.Namespace) -> int:
         err = exc.errors()[0]
         raise ShsasError(f"settings: SHSAS_{'_'.join(map(str, err['loc'])).upper()}: {err['msg']}") from None
     app = create_app(settings)
-    sup = LocalWorkerSupervisor().start() if settings.embedded and not args.no_worker else None
-    mode = "embedded local worker" if sup else ("broker " + settings.broker_url.split("@")[-1]
-                                                if settings.broker_url else "no worker")
-    print(f"shsas serve: http://{args.host}:{args.port}/docs  data={settings.data_dir}  ({mode})", flush=True)
+    # uvicorn shuts down gracefully on SIGTERM, then re-raises it with the handler it found:
+    # the default one would end this process before the `finally` below stops the worker.
+    signal.signal(signal.SIGTERM, _exit_on_term)
+    sup = None
     try:
+        sup = LocalWorkerSupervisor().start() if settings.embedded and not args.no_worker else None
+        mode = "embedded local worker" if sup else ("broker " + settings.broker_url.split("@")[-1]
+                                                    if settings.broker_url else "no worker")
+        print(f"shsas serve: http://{args.host}:{args.port}/docs  data={settings.data_dir}  ({mode})", flush=True)
         uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level, access_log=False)
     finally:
         if sup:
             sup.stop()
     return 0
+
+
+def _exit_on_term(signum: int, _frame: object) -> None:
+    """SIGTERM is a requested stop: unwind (stopping the local worker) and exit 0."""
+    raise SystemExit(0)

@@ -42,7 +42,7 @@ def cluster(tmp_path_factory, pg_url, redis_url):
 
     r = redis.Redis.from_url(redis_url)
     ours = {env["SHSAS_GPU_QUEUE"], env["SHSAS_CPU_QUEUE"]}
-    r.delete(*ours)
+    r.delete(*ours, "shsas:broker-mark")
     # The killed worker's message waits in kombu's unacked hash until its visibility timeout;
     # drop ours so no later consumer of this database restores it.
     for tag, raw in r.hgetall("unacked").items():

@@ -130,6 +130,28 @@ def test_compose_file() -> None:
     assert set(compose["volumes"]) >= {"shsas-data"}
 
 
+def _redis_persists(args: list[str], volumes: list[str], where: str) -> None:
+    assert "--appendonly" in args and args[args.index("--appendonly") + 1] == "yes", where
+    data_dir = args[args.index("--dir") + 1] if "--dir" in args else "/data"
+    assert data_dir in volumes, f"{where}: the AOF directory {data_dir} is not on a persistent volume"
+
+
+def test_redis_keeps_its_messages_on_a_persistent_volume() -> None:
+    compose = yaml.safe_load((REPO / "docker-compose.yml").read_text())
+    redis = compose["services"]["redis"]
+    named = [v.split(":")[1] for v in redis["volumes"] if v.split(":")[0] in compose["volumes"]]
+    _redis_persists(redis["command"], named, "docker-compose.yml")
+    docs = [d for d in yaml.safe_load_all((REPO / "deploy/k8s/redis.yaml").read_text()) if d]
+    sts = next(d for d in docs if d["metadata"]["name"] == "shsas-redis" and d["kind"] != "Service")
+    pod = sts["spec"]["template"]["spec"]
+    assert not any("emptyDir" in v for v in pod.get("volumes", [])), "redis data on emptyDir is lost on restart"
+    claims = {t["metadata"]["name"] for t in sts["spec"].get("volumeClaimTemplates", [])}
+    claims |= {v["name"] for v in pod.get("volumes", []) if "persistentVolumeClaim" in v}
+    container = pod["containers"][0]
+    mounts = [m["mountPath"] for m in container["volumeMounts"] if m["name"] in claims]
+    _redis_persists(container["args"], mounts, "deploy/k8s/redis.yaml")
+
+
 def test_dockerfile_references() -> None:
     text = (REPO / "Dockerfile").read_text()
     cmd = re.search(r"^CMD (\[.*\])$", text, re.M)

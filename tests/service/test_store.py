@@ -114,6 +114,30 @@ def test_reconciler_requeues_stale_then_fails_after_max_attempts(store: JobStore
     assert got.status == "failed" and "lost 2 times" in got.error
 
 
+def test_stale_queued_jobs_are_resent_by_one_reconciler_only(store: JobStore) -> None:
+    first, _ = new_job(store)
+    time.sleep(0.002)
+    second, _ = new_job(store)
+    running, _ = new_job(store)
+    store.claim(running.id, "w1")
+    assert store.queued_older_than(60) == []
+    time.sleep(0.05)
+    waiting = store.queued_older_than(0.01)
+    assert [j.id for j in waiting] == [first.id, second.id]  # oldest first, queued only
+    # Several reconcilers read the same rows; exactly one wins the right to re-send each.
+    wins: list[str] = []
+    threads = [threading.Thread(target=lambda j=j: store.mark_redispatched(j) and wins.append(j.id))
+               for j in waiting for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(wins) == sorted([first.id, second.id])
+    assert all(store.get(j.id).updated_at > j.updated_at for j in waiting)  # re-sent: its age starts again
+    store.claim(first.id, "w2")
+    assert not store.mark_redispatched(store.get(first.id))  # running now: nothing to re-send
+
+
 def test_claim_next_takes_oldest_queued(store: JobStore) -> None:
     first, _ = new_job(store)
     time.sleep(0.002)
