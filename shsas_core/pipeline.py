@@ -109,7 +109,8 @@ def holdout_split(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.nd
 
 
 def load_input(survey: Survey | str | os.PathLike, spec: ReconstructionSpec | None = None,
-               memory_budget: int | None = None, should_stop: StopFn = never_stop) -> Survey:
+               memory_budget: int | None = None, should_stop: StopFn = never_stop,
+               progress: ProgressFn = no_progress) -> Survey:
     """The survey with its samples, after checking the job fits ``memory_budget`` bytes.
 
     The check uses the sizes a file declares, before its samples are read; canonical files are
@@ -134,6 +135,7 @@ def load_input(survey: Survey | str | os.PathLike, spec: ReconstructionSpec | No
         header = load_survey(survey, fmt, load_samples=False)
     if memory_budget is not None and spec is not None:
         check_job_memory(header, spec, memory_budget)
+    progress(0.0, "load", {})  # only now: a file refused from its header shows no stage
     check_stop(should_stop)
     if fmt == "shsas":
         return read_survey(survey, load_extras=False, should_stop=should_stop)
@@ -183,8 +185,7 @@ def run(
     out = Path(out_dir)
     device = resolve_device(spec.device)
     t = time.perf_counter()
-    progress(0.0, "load", {})
-    survey = load_input(survey, spec, memory_budget, should_stop)
+    survey = load_input(survey, spec, memory_budget, should_stop, progress)
     timings["load"] = time.perf_counter() - t
     out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
     ckpt = out / "checkpoints"

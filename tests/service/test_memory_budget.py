@@ -150,7 +150,7 @@ def _cli(args: list[str], env: dict[str, str] | None = None) -> tuple[int, str, 
 def test_cli_refuses_in_one_line_without_allocating(tmp_path, files) -> None:
     rc, err, _ = _cli(["info", str(files["unwritten"])])
     assert rc == 2 and len(err.strip().splitlines()) == 1 and "never written" in err, err
-    rc, err, peak = _cli(["reconstruct", str(files["declared_4e9"]), "--out", str(tmp_path / "out"), "--quiet"])
+    rc, err, peak = _cli(["reconstruct", str(files["declared_4e9"]), "--out", str(tmp_path / "out")])
     assert rc == 2 and len(err.strip().splitlines()) == 1, err
     assert "4000 pings x 1000000 samples" in err and "SHSAS_WORKER_MEMORY_BYTES" in err
     assert peak < 1 * GiB, f"peak RSS {peak / GiB:.1f} GiB"
