@@ -47,13 +47,10 @@ def _die_with_parent(parent_pid: int) -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
 
-def _watch_parent(parent_pid: int, stopping: threading.Event) -> None:
+def _watch_parent(parent_pid: int) -> None:
     """Portable fallback of PR_SET_PDEATHSIG: stop once reparented, end the process if stuck."""
-    while not stopping.wait(PARENT_CHECK_S):
-        if os.getppid() != parent_pid:
-            break
-    else:
-        return
+    while os.getppid() == parent_pid:
+        time.sleep(PARENT_CHECK_S)
     log.error("shsas serve (pid %d) is gone; the local worker stops", parent_pid)
     os.kill(os.getpid(), signal.SIGTERM)
     time.sleep(ORPHAN_GRACE_S)
@@ -62,27 +59,24 @@ def _watch_parent(parent_pid: int, stopping: threading.Event) -> None:
 
 def run_local_worker(parent_pid: int | None = None) -> None:
     """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
-    from .runner import execute_job, worker_id
+    from .runner import execute_job, request_shutdown, worker_id
     from .settings import get_settings
     from .store import JobStore
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     stopping = threading.Event()
-    busy = False
 
     def on_term(*_) -> None:
+        # A running job stops at its next should_stop() and goes back to the queue, where the
+        # next worker resumes it from its checkpoints; then the loop ends.
         stopping.set()
-        if busy:
-            # Leave the job as a lost worker would: its lease goes stale, the reconciler
-            # re-queues it and the next run resumes from its checkpoints.
-            raise SystemExit(0)
+        request_shutdown()
 
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
     if parent_pid is not None:
         _die_with_parent(parent_pid)
-        threading.Thread(target=_watch_parent, args=(parent_pid, stopping), name="shsas-parent-watch",
-                         daemon=True).start()
+        threading.Thread(target=_watch_parent, args=(parent_pid,), name="shsas-parent-watch", daemon=True).start()
     settings = get_settings()
     store = JobStore.from_settings(settings)
     owner = worker_id()
@@ -96,11 +90,10 @@ def run_local_worker(parent_pid: int | None = None) -> None:
         if job is None:
             stopping.wait(settings.local_poll_interval_s)
             continue
-        busy = True
-        try:
-            status = execute_job(store, settings, job.id, owner, claimed=job)
-        finally:
-            busy = False
+        if stopping.is_set():  # the stop came while claiming: hand the job straight back
+            store.release(job.id, owner)
+            break
+        status = execute_job(store, settings, job.id, owner, claimed=job)
         log.info("job %s: %s", job.id, status)
 
 

@@ -33,6 +33,19 @@ CANCEL_POLL_S = 0.1
 PROGRESS_WRITE_S = 0.5
 
 
+#: Set when this worker process is asked to stop (see :func:`request_shutdown`).
+_shutdown = threading.Event()
+
+
+def request_shutdown() -> None:
+    """Stop the running job at its next ``should_stop()`` and hand it back to the queue.
+
+    For signal handlers: unlike an exception raised from the handler, this never lands in the
+    middle of a database write.
+    """
+    _shutdown.set()
+
+
 def worker_id() -> str:
     """A unique lease-owner name for this process: host, pid and a random suffix."""
     return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
@@ -48,7 +61,8 @@ class JobControl:
     """The ``progress`` / ``should_stop`` pair handed to the pipeline, plus a heartbeat thread.
 
     ``should_stop()`` turns True when the API asked to cancel, when this worker lost the lease
-    (another worker took the job over) or past the soft time limit. Past the hard limit the
+    (another worker took the job over), when the worker process is stopping
+    (:func:`request_shutdown`) or past the soft time limit. Past the hard limit the
     heartbeat thread fails the job and ends the process, since the pipeline is not listening.
     """
 
@@ -113,7 +127,7 @@ class JobControl:
         if now - self._last_poll >= CANCEL_POLL_S:
             self._last_poll = now
             self._write()
-        return self.cancel or self.lost_lease or self.timed_out
+        return self.cancel or self.lost_lease or self.timed_out or _shutdown.is_set()
 
 
 #: Names of half-written files: ``x.tmp``, ``.x.<pid>.tmp`` (export) and ``x.tmp<pid>`` (train).
@@ -145,8 +159,9 @@ def _checked_artifacts(out_dir: Path, names: list[str]) -> list[str]:
 def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | None = None,
                 *, claimed: Job | None = None) -> str:
     """Claim and run ``job_id``. Returns the final status, or ``"skipped"`` when the job was not
-    queued (already running elsewhere, finished or cancelled), or ``"lost"`` when another
-    worker took the lease over mid-run."""
+    queued (already running elsewhere, finished or cancelled), ``"lost"`` when another
+    worker took the lease over mid-run, or ``"released"`` when this worker is stopping and
+    handed the job back to the queue."""
     owner = owner or worker_id()
     job = claimed or store.claim(job_id, owner)
     if job is None:
@@ -172,6 +187,9 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
             if ctl.timed_out and not ctl.cancel:
                 store.finish(job.id, owner, "failed", error=ctl._limit_message("soft"))
                 return "failed"
+            if _shutdown.is_set() and not ctl.cancel:
+                _release(store, settings, job, owner)
+                return "released"
             # No half-written artifacts kept: a cancelled job's outputs go entirely.
             shutil.rmtree(out_dir, ignore_errors=True)
             store.finish(job.id, owner, "cancelled", artifacts=[])
@@ -197,5 +215,23 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         name = "soft time limit" if type(exc).__name__ == "SoftTimeLimitExceeded" else type(exc).__name__
         store.finish(job.id, owner, "failed", error=f"internal error ({name}): {str(exc)[:500]}")
         return "failed"
+    except (SystemExit, KeyboardInterrupt):
+        # Stopped by an exception rather than request_shutdown() (e.g. a pool child's exit).
+        _release(store, settings, job, owner)
+        raise
     finally:
         ctl.close()
+
+
+def _release(store: JobStore, settings: Settings, job: Job, owner: str) -> None:
+    """Hand a job this stopping worker holds back to the queue. Left to go stale, its lease
+    would count as a worker death, and two of those fail the job (SHSAS_MAX_ATTEMPTS)."""
+    try:
+        if not store.release(job.id, owner):
+            return
+        log.warning("job %s handed back to the queue: its worker is stopping", job.id)
+        from .dispatch import dispatch
+
+        dispatch(settings, job)
+    except Exception:  # stopping anyway; the reconciler re-sends or re-queues it later
+        log.warning("job %s: could not hand it back; the reconciler will", job.id, exc_info=True)

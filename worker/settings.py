@@ -47,7 +47,8 @@ class Settings(BaseSettings):
     heartbeat_interval_s: float = Field(5.0, gt=0, description="how often a running job refreshes its lease")
     lease_timeout_s: float = Field(60.0, gt=0, description="a running job whose heartbeat is older is re-queued")
     reconcile_interval_s: float = Field(10.0, gt=0, description="how often stale leases are looked for")
-    max_attempts: int = Field(3, ge=1, description="deliveries before a repeatedly lost job is failed")
+    max_attempts: int = Field(2, ge=1, description="a job whose worker died (lease went stale) this many times "
+                              "is failed, not retried: such deaths are most often out-of-memory kills")
     redispatch_after_s: float = Field(
         600.0, gt=0, description="a queued job not picked up for this long is sent to the broker again "
         "(its message may be lost); duplicates are harmless, a job runs once")

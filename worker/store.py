@@ -397,9 +397,23 @@ class JobStore:
                                                    jobs.c.lease_owner == worker_id).values(**values))
         return res.rowcount == 1
 
+    def release(self, job_id: str, worker_id: str) -> bool:
+        """A worker stopping cleanly hands its running job back: queued again at once, and this
+        delivery does not count in ``attempts`` (which counts deliveries whose worker died).
+        False if this worker does not hold the lease."""
+        now = time.time()
+        with self._tx() as conn:
+            res = conn.execute(jobs.update().where(jobs.c.id == job_id, jobs.c.status == "running",
+                                                   jobs.c.lease_owner == worker_id)
+                               .values(status="queued", lease_owner=None, stage="requeued", updated_at=now,
+                                       attempts=jobs.c.attempts - 1))
+        return res.rowcount == 1
+
     def requeue_stale(self, lease_timeout_s: float, max_attempts: int) -> tuple[list[Job], list[Job]]:
         """Reconciler: running jobs whose heartbeat is older than ``lease_timeout_s`` go back to
-        queued (or to failed after ``max_attempts`` deliveries). Returns (requeued, failed)."""
+        queued, or to failed once their worker died ``max_attempts`` times. A stale lease is a
+        worker that died without a word (a clean stop releases its job), most often killed for
+        memory, so retrying without end would only kill more workers. Returns (requeued, failed)."""
         now = time.time()
         cutoff = now - lease_timeout_s
         stale = (jobs.c.status == "running") & (jobs.c.heartbeat_at < cutoff)
@@ -412,9 +426,12 @@ class JobStore:
                 values = {"status": "cancelled", "finished_at": now, "stage": "cancelled"}
             elif job.attempts >= max_attempts:
                 values = {"status": "failed", "finished_at": now, "stage": "failed",
-                          "error": f"the worker running this job was lost {job.attempts} times "
-                                   f"(max_attempts={max_attempts}); the job may exceed the worker's memory "
-                                   "or time limits"}
+                          "error": f"the worker running this job died {job.attempts} times without reporting "
+                                   "why (killed: most often by the out-of-memory killer or a container memory "
+                                   "limit), so it is not retried (SHSAS_MAX_ATTEMPTS="
+                                   f"{max_attempts}); the job likely needs more memory than the worker has "
+                                   "(lower SHSAS_WORKER_MEMORY_BYTES to what the worker really has, so such "
+                                   "jobs are refused at upload, or use a smaller grid or survey)"}
             else:
                 values = {"status": "queued", "stage": "requeued"}
             with self._tx() as conn:

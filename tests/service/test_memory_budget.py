@@ -3,13 +3,15 @@
 A survey's declared sizes are checked against the worker memory budget
 (``SHSAS_WORKER_MEMORY_BYTES``) before anything is allocated: at upload (413), in the worker
 (the job fails before loading) and in ``shsas reconstruct``; samples that were never written
-are refused outright (422; ``shsas info`` too).
+are refused outright (422; ``shsas info`` too). A job whose worker died twice is failed, not
+retried a third time, and a worker that stops cleanly hands its job back without that counting.
 """
 
 from __future__ import annotations
 
 import os
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -24,15 +26,20 @@ from worker.settings import Settings
 from worker.store import JobStore
 
 from .conftest import FAST_TIMINGS, REPO, SHSAS, start_server, submit, wait_for, write_tiny_survey
+from .test_serve_shutdown import _alive, _worker_and_tracker
 
 pytestmark = pytest.mark.service
 
 GiB = 1024**3
 
 QUICK_SPEC = {"methods": ["backprojection"], "grid": 16, "device": "cpu"}
+LONG_SPEC = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
 #: (128, 500000) float32: 256 MB of samples in a ~1 MB file; about 4 GiB for the estimate.
 MID = (128, 500_000)
 SMALL_BUDGET = 2 * GiB
+#: Lease timings for the tests that kill workers: short enough to wait for, long enough that a
+#: loaded machine's late heartbeats do not count as deaths of their own.
+DEATH_TIMINGS = {**FAST_TIMINGS, "SHSAS_LEASE_TIMEOUT_S": "8"}
 
 
 @pytest.fixture(scope="module")
@@ -143,7 +150,7 @@ def _cli(args: list[str], env: dict[str, str] | None = None) -> tuple[int, str, 
 def test_cli_refuses_in_one_line_without_allocating(tmp_path, files) -> None:
     rc, err, _ = _cli(["info", str(files["unwritten"])])
     assert rc == 2 and len(err.strip().splitlines()) == 1 and "never written" in err, err
-    rc, err, peak = _cli(["reconstruct", str(files["declared_4e9"]), "--out", str(tmp_path / "out"), "--quiet"])
+    rc, err, peak = _cli(["reconstruct", str(files["declared_4e9"]), "--out", str(tmp_path / "out")])
     assert rc == 2 and len(err.strip().splitlines()) == 1, err
     assert "4000 pings x 1000000 samples" in err and "SHSAS_WORKER_MEMORY_BYTES" in err
     assert peak < 1 * GiB, f"peak RSS {peak / GiB:.1f} GiB"
@@ -151,3 +158,64 @@ def test_cli_refuses_in_one_line_without_allocating(tmp_path, files) -> None:
                       {"SHSAS_WORKER_MEMORY_BYTES": str(SMALL_BUDGET)})
     assert rc == 2 and "budget of 2.0 GiB" in err, err
     assert not (tmp_path / "out").exists() and not (tmp_path / "out2").exists()
+
+
+# ---- worker deaths ---------------------------------------------------------------------------------
+
+@pytest.mark.slow
+def test_job_whose_worker_died_twice_is_failed_not_retried(tmp_path, files) -> None:
+    """Two SIGKILLs of the worker mid-job (what an OOM kill looks like): failed, no third run."""
+    env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), **DEATH_TIMINGS}
+    proc, base = start_server(tmp_path, env)
+    try:
+        with httpx.Client(base_url=base, timeout=30) as c:
+            job_id = submit(c, files["tiny"], LONG_SPEC).json()["id"]
+            for attempt in (1, 2):
+                wait_for(c, job_id, lambda j, a=attempt: j["status"] == "running" and j["attempts"] == a
+                         and j["progress"] > 0, 90, f"attempt {attempt} under way")
+                worker, _ = _worker_and_tracker(proc.pid)
+                os.kill(worker, signal.SIGKILL)
+            done = wait_for(c, job_id, lambda j: j["status"] != "running", 60, "the second death to be noticed")
+            assert done["status"] == "failed" and done["attempts"] == 2, done
+            assert "died 2 times" in done["error"] and "memory" in done["error"], done["error"]
+            time.sleep(3)  # the restarted worker is idle: nothing re-runs the job
+            again = c.get(f"/reconstructions/{job_id}").json()
+            assert again["status"] == "failed" and again["attempts"] == 2, again
+    finally:
+        proc.stop()
+
+
+@pytest.mark.slow
+def test_stopping_serve_hands_the_running_job_back(tmp_path, files) -> None:
+    """SIGTERM to serve mid-job: the job is queued again at once, not counted as a death, and
+    the next serve takes it up again."""
+    env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), **DEATH_TIMINGS}
+    proc, base = start_server(tmp_path, env)
+    try:
+        with httpx.Client(base_url=base, timeout=30) as c:
+            job_id = submit(c, files["tiny"], LONG_SPEC).json()["id"]
+            wait_for(c, job_id, lambda j: j["status"] == "running" and j["progress"] > 0, 90, "job under way")
+        worker, _ = _worker_and_tracker(proc.pid)
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.p.wait(30)
+        deadline = time.monotonic() + 10
+        while _alive(worker):
+            assert time.monotonic() < deadline, "the local worker outlived serve"
+            time.sleep(0.1)
+    finally:
+        proc.stop()
+    store = JobStore(f"sqlite:///{tmp_path / 'data' / 'shsas.db'}")
+    try:
+        row = store.get(job_id)
+        assert row.status == "queued" and row.attempts == 0 and row.lease_owner is None, (row, proc.tail())
+    finally:
+        store.dispose()
+    proc, base = start_server(tmp_path, env, name="api-2")
+    try:
+        with httpx.Client(base_url=base, timeout=30) as c:
+            wait_for(c, job_id, lambda j: j["status"] == "running" and j["attempts"] == 1 and j["progress"] > 0,
+                     90, "the next serve to run the job again, as its first counted attempt")
+            c.post(f"/reconstructions/{job_id}/cancel")
+            wait_for(c, job_id, lambda j: j["status"] == "cancelled", 30, "cancel")
+    finally:
+        proc.stop()

@@ -111,7 +111,7 @@ def test_reconciler_requeues_stale_then_fails_after_max_attempts(store: JobStore
     requeued, failed = store.requeue_stale(lease_timeout_s=0.2, max_attempts=2)
     assert requeued == [] and [j.id for j in failed] == [job.id]
     got = store.get(job.id)
-    assert got.status == "failed" and "lost 2 times" in got.error
+    assert got.status == "failed" and "died 2 times" in got.error
 
 
 def test_stale_queued_jobs_are_resent_by_one_reconciler_only(store: JobStore) -> None:
