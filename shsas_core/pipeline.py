@@ -146,7 +146,6 @@ def load_input(survey: Survey | str | os.PathLike, spec: ReconstructionSpec | No
         header = load_survey(survey, fmt, load_samples=False)
     if memory_budget is not None and spec is not None:
         check_job_memory(header, spec, memory_budget)
-    progress(0.0, "load", {})  # only now: a file refused from its header shows no stage
     check_stop(should_stop)
     progress(0.0, "load", {})
     if fmt == "shsas":
