@@ -146,8 +146,8 @@ def load_input(survey: Survey | str | os.PathLike, spec: ReconstructionSpec | No
         header = load_survey(survey, fmt, load_samples=False)
     if memory_budget is not None and spec is not None:
         check_job_memory(header, spec, memory_budget)
+    progress(0.0, "load", {})  # the stage starts here, so a cancel during it is reported as such
     check_stop(should_stop)
-    progress(0.0, "load", {})
     if fmt == "shsas":
         return read_survey(survey, load_extras=False, should_stop=should_stop)
     return load_survey(survey, fmt)

@@ -108,7 +108,10 @@ def test_queued_jobs_survive_a_redis_restart_and_run_once(cluster) -> None:
         wait_for(c, blocker["id"], lambda j: j["status"] == "running" and j["progress"] > 0, 90,
                  f"the blocker job to run\n{worker.tail()}")
         stranded = [submit(c, _survey(cluster), {**QUICK_SPEC, "seed": i}).json()["id"] for i in range(2)]
-        assert _queue_lengths(redis.url, env) == 2  # both wait in Redis behind the blocker
+        # both wait in Redis behind the blocker; a reconciler pass that finds the fresh Redis
+        # without its mark key may already have re-sent one (runs stay single through the claim,
+        # which the end of this test checks), so a duplicate message is allowed here
+        assert _queue_lengths(redis.url, env) >= 2
         redis.restart()  # no RDB, no AOF: it comes back empty
         assert _queue_lengths(redis.url, env) == 0
         c.post(f"/reconstructions/{blocker['id']}/cancel")
