@@ -242,19 +242,27 @@ def _generator(seed: int, iteration: int, stream: int = 0) -> torch.Generator:
     return torch.Generator().manual_seed(int(s) & ((1 << 63) - 1))
 
 
+def _pick_pings(data: _Data, cfg: TrainConfig, it_gen: torch.Generator) -> np.ndarray:
+    """The iteration's training pings, sorted (the first draw from ``it_gen``)."""
+    n_train = len(data.pings)
+    pick = torch.randperm(n_train, generator=it_gen)[: min(cfg.pings_per_batch, n_train)].numpy()
+    return np.sort(data.pings[pick])
+
+
+def _bin_geometry(data: _Data, survey, pings: np.ndarray, bins: torch.Tensor, cfg: TrainConfig, device, dtype):
+    """(ping geometry, two-way radii (B, K) of the sample indices ``bins``, m)."""
+    meta = survey.meta
+    r = meta.sound_speed * (data.t0[pings][:, None] + bins.numpy() / meta.fs)  # same formula as bin_radii
+    radii = torch.as_tensor(r, dtype=dtype, device=device)
+    return ping_geometry(survey, pings, device, dtype, cfg.render.beamwidth_deg), radii
+
+
 def _batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, device, dtype):
     """Pings, bins and their targets of one iteration (all draws from ``it_gen``)."""
-    n_train = len(data.pings)
-    b = min(cfg.pings_per_batch, n_train)
-    pick = torch.randperm(n_train, generator=it_gen)[:b].numpy()
-    pings = np.sort(data.pings[pick])
+    pings = _pick_pings(data, cfg, it_gen)
     idx, _pdf = sample_bins(data.magnitude[pings], data.valid[pings], cfg.num_bins, cfg.uniform_fraction, it_gen)
-    rows = torch.as_tensor(pings)[:, None]
-    target = data.signals[rows, idx].to(device)
-    meta = survey.meta
-    r = meta.sound_speed * (data.t0[pings][:, None] + idx.numpy() / meta.fs)  # same formula as bin_radii
-    radii = torch.as_tensor(r, dtype=dtype, device=device)
-    geom = ping_geometry(survey, pings, device, dtype, cfg.render.beamwidth_deg)
+    target = data.signals[torch.as_tensor(pings)[:, None], idx].to(device)
+    geom, radii = _bin_geometry(data, survey, pings, idx, cfg, device, dtype)
     return pings, geom, radii, target
 
 
@@ -283,10 +291,7 @@ def _psf_batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, h
 
     Returns pings, geometry, radii (B, W + 2 half) of the rendered bins, targets (B, W).
     """
-    n_train = len(data.pings)
-    b = min(cfg.pings_per_batch, n_train)
-    pick = torch.randperm(n_train, generator=it_gen)[:b].numpy()
-    pings = np.sort(data.pings[pick])
+    pings = _pick_pings(data, cfg, it_gen)
     valid = data.valid[pings]
     centre, _pdf = sample_bins(data.magnitude[pings], valid, 1, cfg.uniform_fraction, it_gen)
     n_t = valid.shape[1]
@@ -297,10 +302,7 @@ def _psf_batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, h
     cols = start[:, None] + torch.arange(w)[None, :]
     target = data.signals[torch.as_tensor(pings)[:, None], cols].to(device)
     rend = start[:, None] - half + torch.arange(w + 2 * half)[None, :]
-    meta = survey.meta
-    r = meta.sound_speed * (data.t0[pings][:, None] + rend.numpy() / meta.fs)  # same formula as bin_radii
-    radii = torch.as_tensor(r, dtype=dtype, device=device)
-    geom = ping_geometry(survey, pings, device, dtype, cfg.render.beamwidth_deg)
+    geom, radii = _bin_geometry(data, survey, pings, rend, cfg, device, dtype)
     return pings, geom, radii, target
 
 

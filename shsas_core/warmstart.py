@@ -32,10 +32,9 @@ import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 
 from .errors import ShsasError
+from .fields.field import INV_SQRT_4PI
 from .progress import ProgressFn, StopFn, check_stop, no_progress
 from .volume import Volume
-
-INV_SQRT_4PI = 1.0 / math.sqrt(4.0 * math.pi)
 
 
 class WarmStartConfig(BaseModel):
