@@ -3,6 +3,15 @@
 # (CUDA wheels of torch bring their own CUDA runtime; the host needs only the NVIDIA driver and
 # the NVIDIA container toolkit.)
 ARG PYTHON=3.11
+
+# The operator console: built from web/ with the lockfile's versions; only the bundle is kept.
+FROM node:20-slim AS console
+WORKDIR /src/web
+COPY web/package.json web/package-lock.json ./
+RUN npm ci --ignore-scripts --no-audit --no-fund
+COPY web/ ./
+RUN npm run build
+
 FROM python:${PYTHON}-slim AS base
 
 ARG VARIANT=cpu
@@ -31,6 +40,7 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY shsas_core ./shsas_core
 COPY service ./service
+COPY --from=console /src/service/console/static ./service/console/static
 COPY worker ./worker
 RUN pip install ".[service,fast]"
 # build the C kernel once into the image (read-only at run time; the user below can load it)

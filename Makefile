@@ -7,7 +7,11 @@ DEMO_OUT ?= demo_out
 # options of benchmarks/bench_fidelity.py, e.g. make bench-fidelity FIDELITY_ARGS="--quick"
 FIDELITY_ARGS ?=
 
-.PHONY: venv demo test lint bench bench-fidelity clean
+# The operator console (web/ -> service/console/static/, shipped as package data).
+CONSOLE := service/console/static/index.html
+CONSOLE_SRC := $(wildcard web/src/*) web/build.mjs web/package.json web/package-lock.json
+
+.PHONY: venv demo test lint bench bench-fidelity clean console
 
 $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH"; exit 1; }
@@ -23,7 +27,16 @@ venv: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/shsas demo --out $(DEMO_OUT)
 
-test: $(STAMP)
+# npm ci installs exactly the lockfile's versions; --ignore-scripts: nothing to run at install
+# (esbuild's binary comes as an optional dependency).
+$(CONSOLE): $(CONSOLE_SRC)
+	@command -v npm >/dev/null 2>&1 || { echo "need npm (Node.js 20+) on PATH to build the console"; exit 1; }
+	cd web && npm ci --ignore-scripts --no-audit --no-fund && npm run build
+	@touch $(CONSOLE)
+
+console: $(CONSOLE)
+
+test: $(STAMP) $(CONSOLE)
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest -q
 
@@ -41,4 +54,4 @@ bench-fidelity: $(STAMP)
 	$(BIN)/python benchmarks/bench_fidelity.py $(FIDELITY_ARGS)
 
 clean:
-	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .ruff_cache web/node_modules service/console/static

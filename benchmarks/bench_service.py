@@ -7,11 +7,17 @@
    validation child is a separate process and not included). Goal: < 100 MB.
 2. Polling: ``--clients`` (default 100) concurrent clients on loopback polling
    GET /reconstructions/{id} of a running job for ``--seconds`` (default 30) on an embedded
-   server (API + local worker running the job). Closed loop (each client sends its next
-   request as soon as the last one answered) and, with ``--interval``, paced. Prints
-   requests/s, p50, p99, max. Goal: p99 < 50 ms with a job running.
+   server (API + local worker training the job). Closed loop (each client sends its next
+   request as soon as the last one answered, a minimal raw HTTP client) and, with
+   ``--interval`` (default 1 s), paced: each client one request per interval on a fixed
+   schedule, sent with an ``httpx.AsyncClient``. Prints requests/s, p50, p99, max, the
+   niceness and thread counts of the API and of the worker, and their CPU use.
+   Goal (issue 13): paced p99 < 50 ms for 100 pollers at 1 request/s with a job training,
+   on an idle 2-core machine. ``SHSAS_WORKER_NICE=0`` in the environment runs the worker at the
+   API's priority, for comparison.
 
     PYTHONPATH=$PWD python benchmarks/bench_service.py [--seconds 30] [--clients 100] [--upload-gb 1]
+    PYTHONPATH=$PWD python benchmarks/bench_service.py --upload-gb 0 --closed-loop 0   # the paced figure only
 
 The client runs on the same machine as the server and competes with it for CPU.
 """
@@ -227,13 +233,59 @@ async def poll_clients(base: str, job_id: str, clients: int, seconds: float, int
     return lat
 
 
+async def poll_httpx(base: str, job_id: str, clients: int, seconds: float, interval: float) -> list[float]:
+    """``clients`` pollers sharing one ``httpx.AsyncClient`` (a connection each), each sending one
+    GET per ``interval`` on a fixed schedule, so a slow answer does not lower the offered load."""
+    lat: list[float] = []
+    errors = 0
+    limits = httpx.Limits(max_connections=clients, max_keepalive_connections=clients)
+    async with httpx.AsyncClient(base_url=base, limits=limits, timeout=60) as client:
+        end = time.perf_counter() + seconds
+
+        async def one(k: int) -> None:
+            nonlocal errors
+            due = time.perf_counter() + interval * k / clients  # spread the phases
+            while True:
+                await asyncio.sleep(max(0.0, due - time.perf_counter()))
+                if time.perf_counter() >= end:
+                    return
+                t = time.perf_counter()
+                try:
+                    if (await client.get(f"/reconstructions/{job_id}")).status_code != 200:
+                        errors += 1
+                except httpx.HTTPError:
+                    errors += 1
+                lat.append(time.perf_counter() - t)
+                due += interval
+
+        await asyncio.gather(*(one(k) for k in range(clients)))
+    if errors:
+        print(f"  errors: {errors}")
+    return lat
+
+
+def proc_info(pid: int) -> str:
+    """Niceness and thread count of a process (Linux /proc)."""
+    stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return f"nice {int(stat[16])}, {int(stat[17])} threads"
+
+
+def local_worker_pid(serve_pid: int) -> int | None:
+    for task in Path(f"/proc/{serve_pid}/task").iterdir():
+        for pid in (task / "children").read_text().split():
+            if b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return int(pid)
+    return None
+
+
 def report(label: str, lat: list[float], seconds: float) -> None:
     a = np.asarray(lat) * 1000
     print(f"{label}: {len(a)} requests in {seconds:.0f} s = {len(a) / seconds:.0f} req/s; "
           f"p50 {np.percentile(a, 50):.1f} ms, p99 {np.percentile(a, 99):.1f} ms, max {a.max():.1f} ms")
 
 
-def bench_polling(tmp: Path, clients: int, seconds: float, interval: float) -> None:
+def bench_polling(tmp: Path, clients: int, seconds: float, interval: float, closed_loop: bool,
+                  client: str = "httpx") -> None:
     sys.path.insert(0, str(REPO))
     from shsas_core.io import write_survey
     from tests.conftest import make_survey
@@ -249,11 +301,28 @@ def bench_polling(tmp: Path, clients: int, seconds: float, interval: float) -> N
             if time.monotonic() > deadline:
                 raise RuntimeError("job did not start")
             time.sleep(0.2)
-        lat = asyncio.run(poll_clients(base, job["id"], clients, seconds, 0.0))
-        report(f"polling, {clients} clients, closed loop, job running", lat, seconds)
+        deadline = time.monotonic() + 300
+        while httpx.get(f"{base}/reconstructions/{job['id']}").json()["progress"] <= 0:  # training, not importing
+            if time.monotonic() > deadline:
+                raise RuntimeError("job did not start training")
+            time.sleep(0.5)
+        worker = local_worker_pid(proc.pid)
+        print(f"  API pid {proc.pid}: {proc_info(proc.pid)}; local worker pid {worker}: "
+              f"{proc_info(worker) if worker else 'not found'} (SHSAS_WORKER_NICE="
+              f"{os.environ.get('SHSAS_WORKER_NICE', 'default')})")
+        if closed_loop:
+            lat = asyncio.run(poll_clients(base, job["id"], clients, seconds, 0.0))
+            report(f"polling, {clients} clients, closed loop (raw client), job running", lat, seconds)
         if interval:
-            lat = asyncio.run(poll_clients(base, job["id"], clients, seconds, interval))
-            report(f"polling, {clients} clients each every {interval:g} s, job running", lat, seconds)
+            c_api, c_worker, c_self = cpu_s(proc.pid), cpu_s(worker) if worker else 0.0, cpu_s(os.getpid())
+            p0 = httpx.get(f"{base}/reconstructions/{job['id']}").json()["progress"]
+            poll = poll_httpx if client == "httpx" else poll_clients
+            lat = asyncio.run(poll(base, job["id"], clients, seconds, interval))
+            p1 = httpx.get(f"{base}/reconstructions/{job['id']}").json()["progress"]
+            report(f"polling, {clients} clients ({client} client) each every {interval:g} s, job training", lat, seconds)
+            print(f"  CPU over the paced run: API {cpu_s(proc.pid) - c_api:.1f} s, worker "
+                  f"{(cpu_s(worker) - c_worker) if worker else float('nan'):.1f} s, client "
+                  f"{cpu_s(os.getpid()) - c_self:.1f} s in {seconds:.0f} s; job progress {p0:.4f} -> {p1:.4f}")
         final = httpx.get(f"{base}/reconstructions/{job['id']}").json()
         print(f"  job still {final['status']} at progress {final['progress']:.3f} during the run")
         httpx.post(f"{base}/reconstructions/{job['id']}/cancel")
@@ -266,6 +335,10 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=30.0, help="polling duration per mode (max 120)")
     ap.add_argument("--clients", type=int, default=100)
     ap.add_argument("--interval", type=float, default=1.0, help="paced mode: seconds between a client's polls (0 = skip)")
+    ap.add_argument("--closed-loop", type=int, default=1, help="1: also run the closed-loop polling (0 = skip)")
+    ap.add_argument("--client", choices=["httpx", "raw"], default="httpx",
+                    help="paced mode's client: httpx.AsyncClient, or the minimal raw HTTP/1.1 client "
+                    "(~10x less client CPU per request, for machines where the client is the bottleneck)")
     ap.add_argument("--upload-gb", type=float, default=1.0, help="survey size for the upload test (0 = skip)")
     args = ap.parse_args()
     seconds = min(args.seconds, 120.0)
@@ -274,7 +347,7 @@ def main() -> None:
         tmp = Path(d)
         if args.upload_gb > 0:
             bench_upload(tmp, args.upload_gb)
-        bench_polling(tmp, args.clients, seconds, args.interval)
+        bench_polling(tmp, args.clients, seconds, args.interval, bool(args.closed_loop), args.client)
     print(f"load average {os.getloadavg()[0]:.1f} at end")
 
 

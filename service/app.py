@@ -1,37 +1,51 @@
 """The FastAPI application: ``create_app(settings)``; OpenAPI at /docs.
 
-Routes: POST/GET /reconstructions, GET /reconstructions/{id}, POST .../cancel,
-GET .../artifacts and .../artifacts/{name}, /healthz, /readyz (design §6).
+Routes: POST/GET /reconstructions, GET/DELETE /reconstructions/{id}, POST .../cancel,
+GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz (design §6),
+and /docs (Swagger UI served from the installed ``swagger-ui-py`` package, no CDN).
 """
 
 from __future__ import annotations
 
-import contextlib
 import hashlib
+import importlib.util
 import json
 import logging
 import shutil
 import time
 import uuid
 from contextlib import asynccontextmanager
+from pathlib import Path
 from typing import Annotated
 
+import anyio
 import pydantic
 from anyio import to_thread
 from fastapi import Depends, FastAPI, Header, HTTPException, Query, Request
-from fastapi.responses import JSONResponse, Response
+from fastapi.exception_handlers import http_exception_handler, request_validation_exception_handler
+from fastapi.exceptions import RequestValidationError
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
 
 from shsas_core.errors import pydantic_fix
 from shsas_core.spec import ReconstructionSpec
 from worker.dispatch import broker_ping, dispatch
 from worker.reconciler import Reconciler
-from worker.runner import job_paths
+from worker.runner import job_paths, remove_job_files
 from worker.settings import Settings, get_settings
 from worker.store import STATUSES, IdempotencyConflict, JobStore
 
+from . import iso, survey_routes
 from .artifacts import etag_of, file_response, media_type, safe_artifact_path
 from .auth import owner_of
+from .console import add_console
+from .logs import AccessLogMiddleware
+from .lookup import job_of
 from .models import Artifact, ArtifactList, ErrorOut, Health, JobOut, JobPage
+from .quotas import box_of, check_active_jobs, check_spec_cost
+from .status import live_status
+from .sweeper import Sweeper, upload_dir
 from .uploads import UploadError, receive_upload
 from .validation import validate_in_child
 
@@ -41,6 +55,18 @@ log = logging.getLogger("shsas.api")
 INPUT_NAMES = {"shsas": "survey.h5", "svss": "survey.hdf5", "airsas-csv": "survey.zip",
                "airsas-pickle": "survey.pkl"}
 ERRORS = {400: {"model": ErrorOut}, 401: {"model": ErrorOut}, 404: {"model": ErrorOut}}
+#: Where /docs loads Swagger UI from: the static files of the installed swagger-ui-py package.
+DOCS_ASSETS = "/docs-assets"
+
+
+def swagger_ui_dir() -> Path | None:
+    """The folder of Swagger UI's built files in the installed ``swagger-ui-py`` package (found
+    without importing it: its __init__ pulls in web-framework handlers), or None."""
+    found = importlib.util.find_spec("swagger_ui")
+    if found is None or not found.submodule_search_locations:
+        return None
+    static = Path(next(iter(found.submodule_search_locations))) / "static"
+    return static if (static / "swagger-ui-bundle.js").is_file() else None
 
 
 def spec_error(exc: pydantic.ValidationError) -> str:
@@ -71,20 +97,6 @@ def _json(model: pydantic.BaseModel, status: int = 200) -> Response:
 Owner = Annotated[str, Depends(current_owner)]
 
 
-#: Upload folders older than this are leftovers of a crashed API process (other replicas
-#: sharing the data dir may have younger ones in flight).
-STALE_UPLOAD_S = 24 * 3600
-
-
-def _sweep_uploads(root) -> None:
-    if not root.is_dir():
-        return
-    cutoff = time.time() - STALE_UPLOAD_S
-    for d in root.iterdir():
-        with contextlib.suppress(OSError):
-            if d.stat().st_mtime < cutoff:
-                shutil.rmtree(d, ignore_errors=True)
-
 
 def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> FastAPI:
     """Build the app. ``reconcile`` runs the stale-lease reconciler thread in this process."""
@@ -94,46 +106,72 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
-        _sweep_uploads(settings.data_dir / "uploads")
+        sweeper = Sweeper(store, settings)
+        sweeper.sweep_once()  # before the first request: whatever a killed process left
+        sweeper.start()
         rec = Reconciler(store, settings).start() if reconcile else None
         yield
         if rec:
             rec.stop()
+        sweeper.stop()
         store.dispose()
 
     app = FastAPI(
-        title="shsas", version="0.1.0", lifespan=lifespan,
+        title="shsas", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
         description="3D reconstruction from synthetic aperture sonar surveys (SH-SAS). Upload a survey "
                     "with a ReconstructionSpec, poll the job, download meshes, point clouds, volumes and "
                     "reports. Auth: `Authorization: Bearer <key>` (see `shsas keys create`).")
     app.state.settings = settings
     app.state.store = store
+    app.add_middleware(AccessLogMiddleware)
+    _offline_docs(app)
+
+    def _refused(request: Request, status: int, reason: str) -> None:
+        log.warning("submission refused (%d): %s", status, reason,
+                    extra={"status": status, "reason": reason, "key_id": getattr(request.state, "key_id", None)})
 
     @app.exception_handler(UploadError)
     async def _upload_error(request: Request, exc: UploadError) -> JSONResponse:
+        _refused(request, exc.status, exc.message)
         return JSONResponse({"detail": exc.message}, status_code=exc.status)
 
+    # Submissions refused before the handler runs (no or a bad key, a bad header) are logged
+    # with their reason too; other routes' 4xx are in the access log.
+    @app.exception_handler(HTTPException)
+    async def _http_error(request: Request, exc: HTTPException) -> Response:
+        if request.method == "POST" and request.url.path == "/reconstructions":
+            _refused(request, exc.status_code, str(exc.detail))
+        return await http_exception_handler(request, exc)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid_request(request: Request, exc: RequestValidationError) -> Response:
+        if request.method == "POST" and request.url.path == "/reconstructions":
+            _refused(request, 422, "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors()[:3]))
+        return await request_validation_exception_handler(request, exc)
+
     def job_or_404(job_id: str, who: str):
-        job = store.get(job_id, who) if len(job_id) <= 32 and job_id.isalnum() else None
-        if job is None:
-            raise HTTPException(404, f"no reconstruction {job_id!r} for this API key")
-        return job
+        return job_of(store, job_id, who)
 
     @app.post("/reconstructions", status_code=202, response_model=JobOut,
               responses={**ERRORS, 409: {"model": ErrorOut}, 413: {"model": ErrorOut},
-                         415: {"model": ErrorOut}, 422: {"model": ErrorOut}, 503: {"model": ErrorOut}},
-              openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
-                  "type": "object", "required": ["survey"], "additionalProperties": False, "properties": {
-                      "survey": {"type": "string", "format": "binary",
-                                 "description": "canonical shsas HDF5, AirSAS zip or SVSS HDF5"},
-                      "spec": {"type": "string", "description": "ReconstructionSpec as JSON (defaults if absent)"},
-                  }}}}}})
+                         415: {"model": ErrorOut}, 422: {"model": ErrorOut}, 429: {"model": ErrorOut},
+                         503: {"model": ErrorOut}},
+              openapi_extra={"requestBody": {"required": True, "content": {"multipart/form-data": {
+                  "schema": {
+                      "type": "object", "required": ["survey"], "additionalProperties": False, "properties": {
+                          "survey": {"type": "string", "format": "binary",
+                                     "description": "canonical shsas HDF5, AirSAS zip or SVSS HDF5"},
+                          "spec": {"$ref": "#/components/schemas/ReconstructionSpec",
+                                   "description": "the ReconstructionSpec as JSON (defaults if absent)"},
+                      }},
+                  "encoding": {"spec": {"contentType": "application/json"}}}}}})
     async def submit(request: Request, who: Owner,
                      idempotency_key: Annotated[str | None, Header(max_length=200)] = None) -> Response:
-        """Upload a survey and a spec; answers 202 with the queued job and its Location."""
-        tmp_dir = settings.data_dir / "uploads" / uuid.uuid4().hex
-        tmp_dir.mkdir(parents=True)
-        try:
+        """Upload a survey and a spec; answers 202 with the queued job and its Location.
+
+        Refused with 429 past the key's quota of queued and running jobs, and with 422 when the
+        spec is over the cost cap (docs/service.md, "Limits")."""
+        with upload_dir(settings.data_dir / "uploads") as tmp_dir:
             up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes)
             if up.path is None:
                 raise UploadError(422, "survey: missing file part 'survey' (fix: send the survey file as "
@@ -146,6 +184,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                 spec = ReconstructionSpec.model_validate_json(spec_text)
             except pydantic.ValidationError as exc:
                 raise UploadError(422, spec_error(exc)) from None
+            check_spec_cost(spec, settings)
             spec_json = spec.model_dump(mode="json")
             request_digest = hashlib.sha256(
                 (json.dumps(spec_json, sort_keys=True) + up.sha256).encode()).hexdigest()
@@ -156,10 +195,12 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
                         raise UploadError(409, f"Idempotency-Key already used for job {prior.id} "
                                                "with a different survey or spec")
                     return _accepted(prior, request)
+            check_active_jobs(await to_thread.run_sync(store.count_active, who), settings)
             upload_path = up.path
             checked = await to_thread.run_sync(lambda: validate_in_child(
                 upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
                 display_name=up.display_name, spec=spec_json, worker_memory_bytes=settings.worker_memory_bytes))
+            check_spec_cost(spec, settings, box_of(checked["summary"]))  # the automatic grid, now known
             job_id = uuid.uuid4().hex
             in_dir, _ = job_paths(settings, job_id)
             in_dir.mkdir(parents=True)
@@ -179,14 +220,17 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
             try:
                 await to_thread.run_sync(dispatch, settings, job)
             except Exception as exc:
-                log.exception("could not send job %s to the broker", job.id)
+                log.exception("could not send job %s to the broker", job.id,
+                              extra={"job_id": job.id, "key_id": who, "reason": type(exc).__name__})
                 msg = f"the broker is unreachable ({type(exc).__name__}); nothing was queued, resubmit later"
                 await to_thread.run_sync(store.fail_queued, job.id, msg)
                 shutil.rmtree(in_dir.parent, ignore_errors=True)
                 raise UploadError(503, msg) from None
+            log.info("job %s submitted", job.id, extra={
+                "job_id": job.id, "key_id": who, "queue": job.queue, "methods": spec.methods,
+                "grid": spec.grid, "iters": spec.iters, "input_bytes": up.size, "format": checked["format"],
+                "client_filename": up.display_name})
             return _accepted(job, request)
-        finally:
-            shutil.rmtree(tmp_dir, ignore_errors=True)
 
     def _accepted(job, request: Request) -> JSONResponse:
         body = JobOut.from_job(job).model_dump(mode="json")
@@ -207,9 +251,12 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
 
     @app.get("/reconstructions/{job_id}", response_model=JobOut, responses=ERRORS)
     async def get_job(job_id: str, who: Owner) -> Response:
-        """Status, progress, stage, attempts, timestamps, error, metrics and artifact links."""
-        # Inline like current_owner: this is the route pollers hit, one indexed read.
-        return _json(JobOut.from_job(job_or_404(job_id, who)))
+        """Status, progress, stage, attempts, timestamps, error, metrics and artifact links; for a
+        queued job its queue position and ETA, for a running one its ETA and heartbeat age."""
+        # Inline like current_owner: this is the route pollers hit, one indexed read (a queued
+        # job adds one count; the queue's measured rate is cached for a few seconds).
+        job = job_or_404(job_id, who)
+        return _json(JobOut.from_job(job, live=live_status(store, settings, job)))
 
     @app.post("/reconstructions/{job_id}/cancel", response_model=JobOut, status_code=202, responses=ERRORS)
     def cancel_job(job_id: str, who: Owner) -> JobOut:
@@ -217,7 +264,29 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         job_or_404(job_id, who)
         job = store.request_cancel(job_id, who)
         assert job is not None
+        log.info("job %s: cancel requested", job_id, extra={"job_id": job_id, "key_id": who,
+                                                           "status": job.status})
         return JobOut.from_job(job)
+
+    @app.delete("/reconstructions/{job_id}", status_code=204, responses={
+        **ERRORS, 204: {"description": "deleted: the job and its files are gone"}})
+    async def delete_job(job_id: str, who: Owner) -> Response:
+        """Delete a job and its files (the survey and every artifact). A queued job is cancelled; a
+        running one is cancelled first and deleted once it stopped (or after SHSAS_DELETE_WAIT_S;
+        its worker then removes what it still writes). Only the key that submitted it can."""
+        job = job_or_404(job_id, who)
+        was = job.status
+        if job.status in ("queued", "running"):
+            current = await to_thread.run_sync(store.request_cancel, job.id, who)
+            deadline = time.monotonic() + settings.delete_wait_s
+            while current is not None and current.status == "running" and time.monotonic() < deadline:
+                await anyio.sleep(0.1)
+                current = await to_thread.run_sync(store.get, job.id, who)
+        await to_thread.run_sync(store.delete, job.id, who)
+        await to_thread.run_sync(remove_job_files, settings, job.id)
+        log.info("job %s deleted", job.id, extra={"job_id": job.id, "key_id": who, "status": was,
+                                                  "reason": "DELETE by its owner"})
+        return Response(status_code=204)
 
     @app.get("/reconstructions/{job_id}/artifacts", response_model=ArtifactList, responses=ERRORS)
     def list_artifacts(job_id: str, who: Owner) -> ArtifactList:
@@ -253,12 +322,32 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         if p is None:
             raise HTTPException(404, f"no artifact {name!r} in reconstruction {job.id} "
                                      f"(available: {', '.join(job.artifacts) or 'none yet'})")
-        return file_response(p, request.headers, name)
+        return file_response(p, request.headers, name, head=request.method == "HEAD")
+
+    @app.head("/reconstructions/{job_id}/artifacts/{name}", responses={
+        **ERRORS, 304: {"description": "not modified"}, 416: {"description": "range not satisfiable"},
+        200: {"description": "the headers of the download (Content-Length, ETag, ...), no body"}})
+    def head_artifact(job_id: str, name: str, who: Owner, request: Request,
+                      range_: Annotated[str | None, Header(alias="Range")] = None,
+                      if_range: Annotated[str | None, Header()] = None,
+                      if_none_match: Annotated[str | None, Header()] = None) -> Response:
+        """The headers GET would send (size, type, ETag, Content-Range), without the body."""
+        return get_artifact(job_id, name, who, request)
 
     @app.get("/healthz", response_model=Health)
     def healthz() -> Health:
         """Liveness: the process answers."""
         return Health(status="ok")
+
+    @app.head("/healthz")
+    def head_healthz() -> Response:
+        """Liveness, headers only."""
+        return Response(status_code=200)
+
+    @app.head("/readyz", responses={503: {"description": "not ready"}})
+    def head_readyz() -> Response:
+        """Readiness, headers only: 200 or 503."""
+        return Response(status_code=readyz().status_code)
 
     @app.get("/readyz", response_model=Health, responses={503: {"model": Health}})
     def readyz() -> Response:
@@ -280,7 +369,47 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
         body = Health(status="ok" if ok else "unavailable", checks=checks)
         return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
 
+    # The console and the routes made for it (re-extraction, survey view), kept in their modules.
+    app.include_router(iso.router)
+    app.include_router(survey_routes.router)
+    add_console(app)
     return app
+
+
+def _offline_docs(app: FastAPI) -> None:
+    """/docs from local files, and the spec's JSON schema in the OpenAPI document.
+
+    The Swagger UI page FastAPI makes loads its script and style from a CDN, so the page is
+    blank without internet; here they come from the installed ``swagger-ui-py`` package.
+    """
+    assets = swagger_ui_dir()
+    if assets is not None:
+        app.mount(DOCS_ASSETS, StaticFiles(directory=assets), name="docs-assets")
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        if assets is None:
+            return HTMLResponse("Swagger UI is not installed (pip install swagger-ui-py); the OpenAPI "
+                                "schema is at <a href='/openapi.json'>/openapi.json</a>", status_code=503)
+        return get_swagger_ui_html(openapi_url=app.openapi_url or "/openapi.json", title="shsas API",
+                                   swagger_js_url=f"{DOCS_ASSETS}/swagger-ui-bundle.js",
+                                   swagger_css_url=f"{DOCS_ASSETS}/swagger-ui.css",
+                                   swagger_favicon_url=f"{DOCS_ASSETS}/favicon-32x32.png")
+
+    plain_openapi = app.openapi
+
+    def openapi() -> dict:
+        # The multipart `spec` field refers to ReconstructionSpec, which no route returns, so
+        # FastAPI does not put its schema in the components: add it (and its own $defs).
+        if app.openapi_schema is None:
+            schema = plain_openapi()
+            spec = ReconstructionSpec.model_json_schema(ref_template="#/components/schemas/{model}")
+            components = schema.setdefault("components", {}).setdefault("schemas", {})
+            components.update(spec.pop("$defs", {}))
+            components["ReconstructionSpec"] = spec
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def _app_from_env() -> FastAPI:

@@ -66,8 +66,16 @@ def _position(digits: str, size: int) -> int | None:
     return min(int(digits), size)
 
 
-def file_response(path: Path, headers_in, download_name: str) -> Response:
-    """200 / 206 / 304 / 416 for ``path`` following RFC 9110 for one range."""
+def _send(path: Path, start: int, length: int, status: int, mtype: str, headers: dict[str, str],
+          head: bool) -> Response:
+    headers = {**headers, "Content-Length": str(length)}
+    if head:  # the same status and headers, no body (RFC 9110 §9.3.2)
+        return Response(status_code=status, media_type=mtype, headers=headers)
+    return StreamingResponse(_read(path, start, length), status_code=status, media_type=mtype, headers=headers)
+
+
+def file_response(path: Path, headers_in, download_name: str, *, head: bool = False) -> Response:
+    """200 / 206 / 304 / 416 for ``path`` following RFC 9110 for one range; ``head``: headers only."""
     size = path.stat().st_size
     etag = etag_of(path)
     base = {
@@ -97,13 +105,10 @@ def file_response(path: Path, headers_in, download_name: str) -> Response:
                 start, end = max(size - last, 0), size - 1
             if start >= size or end < start or (first is None and last == 0):
                 return Response(status_code=416, headers={**base, "Content-Range": f"bytes */{size}"})
-            length = end - start + 1
-            return StreamingResponse(_read(path, start, length), status_code=206, media_type=mtype,
-                                     headers={**base, "Content-Range": f"bytes {start}-{end}/{size}",
-                                              "Content-Length": str(length)})
+            return _send(path, start, end - start + 1, 206, mtype,
+                         {**base, "Content-Range": f"bytes {start}-{end}/{size}"}, head)
         # Multiple or malformed ranges: RFC 9110 lets us ignore Range and send the whole file.
-    return StreamingResponse(_read(path, 0, size), status_code=200, media_type=mtype,
-                             headers={**base, "Content-Length": str(size)})
+    return _send(path, 0, size, 200, mtype, base, head)
 
 
 def safe_artifact_path(out_dir: Path, name: str, allowed: list[str]) -> Path | None:

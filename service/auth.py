@@ -12,7 +12,7 @@ import time
 
 from fastapi import HTTPException, Request
 
-from worker.store import LOCAL_OWNER, JobStore
+from worker.store import KEY_PREFIX, LOCAL_OWNER, JobStore
 
 
 def _token(request: Request) -> str | None:
@@ -55,12 +55,27 @@ def _has_active_keys(store: JobStore) -> bool:
     return value
 
 
+def _claimed_id(token: str) -> str | None:
+    """The key id part of a token (``shsas_<id>_<secret>``), for the access log: never the secret."""
+    if not token.startswith(KEY_PREFIX):
+        return None
+    key_id = token[len(KEY_PREFIX):].partition("_")[0]
+    return key_id[:32] if key_id.isalnum() else None
+
+
 def owner_of(request: Request, store: JobStore) -> str:
-    """The job owner for this request, or HTTPException 401."""
+    """The job owner for this request, or HTTPException 401. Leaves the key id for the access log."""
+    owner = _owner_of(request, store)
+    request.state.key_id = owner
+    return owner
+
+
+def _owner_of(request: Request, store: JobStore) -> str:
     token = _token(request)
     if token:
         owner = store.verify_key(token)
         if owner is None:
+            request.state.claimed_key_id = _claimed_id(token)
             raise HTTPException(401, "invalid or revoked API key", headers={"WWW-Authenticate": "Bearer"})
         return owner
     if _has_active_keys(store):

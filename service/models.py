@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from datetime import UTC, datetime
 from typing import Any, Literal
 
@@ -9,6 +10,8 @@ from pydantic import BaseModel, Field
 
 from shsas_core.diagnostics import ResultWarning
 from worker.store import Job
+
+from .status import LiveStatus
 
 Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
@@ -65,9 +68,23 @@ class JobOut(BaseModel):
         "(collapsed volume, cloud filling the scene box, data loss that did not fall); empty when none")
     artifacts: list[ArtifactLink]
     links: dict[str, str]
+    queue_position: int | None = Field(
+        None, description="queued jobs (of any key) ahead of this one in its queue; 0 = next. "
+        "Only in GET /reconstructions/{id}, null elsewhere and once the job left the queue")
+    eta_s: float | None = Field(
+        None, description="rough seconds until the job finishes, from the measured run time of recent "
+        "jobs in its queue and, when running, its own progress rate; null until measured. Only in "
+        "GET /reconstructions/{id}")
+    heartbeat_age_s: float | None = Field(
+        None, description="running jobs: seconds since the worker last wrote its heartbeat. Only in "
+        "GET /reconstructions/{id}")
+    worker_responding: bool | None = Field(
+        None, description="running jobs: false once the heartbeat is older than three heartbeat "
+        "intervals (the worker died, hangs or lost the job store); the job is re-queued once the age "
+        "passes the lease timeout")
 
     @classmethod
-    def from_job(cls, job: Job, base: str = "") -> JobOut:
+    def from_job(cls, job: Job, base: str = "", live: LiveStatus | None = None) -> JobOut:
         url = f"{base}/reconstructions/{job.id}"
         lm = job.live_metrics
         rate = next((lm[k] for k in ("it_per_s", "iters_per_s", "it/s") if k in lm), None)
@@ -80,6 +97,7 @@ class JobOut(BaseModel):
             metrics=job.metrics, warnings=[ResultWarningOut.model_validate(w) for w in job.warnings],
             artifacts=[ArtifactLink(name=a, url=f"{url}/artifacts/{a}") for a in job.artifacts],
             links={"self": url, "cancel": f"{url}/cancel", "artifacts": f"{url}/artifacts"},
+            **(dataclasses.asdict(live) if live is not None else {}),
         )
 
 

@@ -18,6 +18,7 @@ import numpy as np
 
 from . import __version__
 from .errors import SurveyValidationError, UnsafeFileError
+from .planar import elevation_info
 from .progress import StopFn, check_stop
 from .survey import (
     MAX_MESH_ELEMENTS,
@@ -309,6 +310,8 @@ def summarize(survey: Survey) -> dict[str, Any]:
             "vertices": len(survey.gt_vertices), "faces": len(survey.gt_faces)},  # type: ignore[arg-type]
         "extras": sorted(survey.extras),
         "attrs": dict(m.attrs),
+        # whether images are 3-D or should be read in one plane (single-height scans)
+        "elevation": elevation_info(survey).model_dump(),
         "warnings": [w for w in (pulse_disagreement(m, survey.pulse),) if w],
     }
 

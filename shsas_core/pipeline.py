@@ -248,7 +248,9 @@ def run(
     t = time.perf_counter()
     artifacts = sorted({a for r in reports for a in r.artifacts.values()} | {"report.json", "report.html"})
     timings["total"] = time.perf_counter() - t_start
-    report = Report(spec=spec, survey=summarize(survey), ground_truth=gt is not None, timings=timings,
+    summary = summarize(survey)
+    _add_focus_height(summary, figures)
+    report = Report(spec=spec, survey=summary, ground_truth=gt is not None, timings=timings,
                     methods=reports, artifacts=artifacts)
     json_path, html_path = write_report(report, figures, out)
     timings["report"] = time.perf_counter() - t
@@ -264,6 +266,18 @@ def run(
     return PipelineResult(out_dir=str(out), artifacts=artifacts, metrics=metrics,
                           report_json=str(json_path), report_html=str(html_path), timings=timings,
                           warnings=report.warnings())
+
+
+def _add_focus_height(summary: dict[str, Any], figures: ReportFigures) -> None:
+    """A single-height survey's report shows the plane of best focus: its height, from the
+    backprojection volume (else the first method's), goes into the summary's elevation entry."""
+    elev = summary.get("elevation") or {}
+    if elev.get("kind", "3d") == "3d" or not figures.volumes:
+        return
+    from .planar import volume_focus_height
+
+    ref = figures.volumes.get("backprojection") or next(iter(figures.volumes.values()))
+    elev["focus_height_m"] = volume_focus_height(ref)
 
 
 def _rewrite_json(report: Report, path: Path) -> None:
@@ -461,6 +475,7 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     import torch
 
     from .fields import FieldConfig, SHField
+    from .fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
     from .train import CHECKPOINT_NAME, fit
     from .warmstart import WarmStartConfig, distill
 
@@ -469,10 +484,13 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
                        encoding=encoding_config(spec.encoding))
     field = SHField(fcfg).to(device)
     fit_progress = progress
-    if spec.init == "backprojection":
+    occupancy = None
+    if spec.init == "backprojection" or spec.occupancy is not None:
         fit_progress = sub_progress(progress, 0.25, 1.0)
-        if not (ckpt / CHECKPOINT_NAME).exists():
-            vol = image(sub_progress(progress, 0.0, 0.15))
+        vol = image(sub_progress(progress, 0.0, 0.15))
+        if spec.occupancy is not None:
+            occupancy = OccupancyGrid.from_volume(vol, OccupancyConfig(level=spec.occupancy))
+        if spec.init == "backprojection" and not (ckpt / CHECKPOINT_NAME).exists():
             distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
                     should_stop=should_stop, stage=f"warm start:{method}")
     cfg = train_config(spec)
@@ -482,8 +500,10 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
 
         psf = point_spread(survey, deconv_config(spec))
     result = fit(field, survey, s_pd, cfg, progress=fit_progress, should_stop=should_stop,
-                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}", psf=psf)
-    return field, result
+                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}", psf=psf,
+                 occupancy=occupancy)
+    # the model is the field inside its mask: render and extract it as it was trained
+    return (field if occupancy is None else MaskedField(field, occupancy)), result
 
 
 #: The ``small`` encoding: the setting the trainer's sphere convergence test uses on a CPU.
@@ -506,6 +526,7 @@ def train_config(spec: ReconstructionSpec) -> Any:
     want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays, "lr": spec.lr,
             "lr_final": spec.lr_final,
             "target": spec.target, "pings_per_batch": spec.pings_per_batch, "device": spec.device,
+            "weights": {"sparsity": spec.sparsity},
             # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
             "checkpoint_every": max(10, min(500, spec.iters // 10))}
     fields = TrainConfig.model_fields

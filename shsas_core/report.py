@@ -171,6 +171,30 @@ def mip_figure(volumes: dict[str, Volume]) -> bytes:
     return _png(fig)
 
 
+def plane_figure(volumes: dict[str, Volume], z: float) -> bytes:
+    """PNG: each method's horizontal slice nearest height ``z`` (normalised magnitude), side by
+    side: what a single-height survey shows instead of projections of a 3-D volume."""
+    plt = _plt()
+    names = list(volumes)
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.6), squeeze=False)
+    for c, name in enumerate(names):
+        vol = volumes[name]
+        zs = vol.grid.axes()[2]
+        k = int(np.argmin(np.abs(zs - z)))
+        img = np.abs(np.asarray(vol.values)[:, :, k])
+        peak = float(img.max())
+        img = img / peak if peak > 0 else img
+        lo, hi = np.asarray(vol.grid.box_min), np.asarray(vol.grid.box_max)
+        ax = axes[0, c]
+        ax.imshow(img.T, origin="lower", extent=(lo[0], hi[0], lo[1], hi[1]), cmap="magma", vmin=0, vmax=1,
+                  aspect="equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title(f"{name}: z = {zs[k]:.3f} m", fontsize=9)
+    fig.tight_layout()
+    return _png(fig)
+
+
 def mesh_figure(meshes: dict[str, Any], gt_mesh: Any | None = None, max_faces: int = 20000) -> bytes:
     """PNG: each mesh (and the ground truth) from the same oblique viewpoint, shaded by normal."""
     plt = _plt()
@@ -324,7 +348,16 @@ def render_html(report: Report, figures: ReportFigures) -> str:
         parts.append(f"<p><small>{esc(report.metrics_protocol)}</small></p>")
     else:
         parts.append("<h2>Metrics</h2><p>The survey has no ground truth; no geometry metrics.</p>")
-    if figures.volumes:
+    elev = report.survey.get("elevation") or {}
+    plane_z = elev.get("focus_height_m")
+    if elev.get("kind", "3d") != "3d":
+        parts.append(f"<h2>Elevation</h2><p class='note'>{esc(str(elev.get('message', '')))}</p>")
+    if figures.volumes and plane_z is not None and elev.get("kind", "3d") != "3d":
+        # a projection over z of a survey without elevation aperture smears the focused plane
+        parts.append(f"<h2>Plane of best focus (z = {plane_z:.3f} m)</h2><p>Each method's horizontal "
+                     "slice at the height where the backprojection is sharpest (lowest image entropy "
+                     "over the volume's slices).</p>" + _img(plane_figure(figures.volumes, plane_z), "plane"))
+    elif figures.volumes:
         parts.append("<h2>Maximum-intensity projections</h2>" + _img(mip_figure(figures.volumes), "MIP"))
     if figures.meshes:
         parts.append("<h2>Meshes</h2>" + _img(mesh_figure(figures.meshes, figures.gt_mesh), "meshes"))

@@ -55,6 +55,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
+from .fields.occupancy import MaskedField, OccupancyGrid
 from .heap import heap_cache
 from .progress import ProgressFn, StopFn, check_stop, no_progress
 from .render.renderer import (
@@ -420,7 +421,8 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
 def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig | None = None,
         progress: ProgressFn | None = None, should_stop: StopFn | None = None,
         checkpoint_dir: str | Path | None = None, ping_indices: Sequence[int] | None = None,
-        stage: str = "fit", psf: np.ndarray | None = None) -> FitResult:
+        stage: str = "fit", psf: np.ndarray | None = None,
+        occupancy: OccupancyGrid | None = None) -> FitResult:
     """Train ``field`` so that rendered pings match ``signals``.
 
     Args:
@@ -440,6 +442,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             :func:`~shsas_core.deconv.point_spread`). When given, the rendered impulse response
             of contiguous bins is convolved with it before it is compared with the data, so a thin
             surface explains a PSF-wide echo (``cfg.psf_window`` target bins per ping).
+        occupancy: where the field may be non-zero (:mod:`shsas_core.fields.occupancy`); the
+            field is rendered as ``MaskedField(field, occupancy)``, evaluated only there. Render
+            and extract the trained field through the same mask.
 
     Returns:
         :class:`FitResult`.
@@ -463,6 +468,11 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     box = survey.meta.scene_box
     tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
     fp = _fingerprint(cfg, field, data)
+    model = field
+    if occupancy is not None:
+        occupancy.to(device)
+        model = MaskedField(field, occupancy)
+        fp["occupancy"] = occupancy.digest()
     psf_t = None
     if psf is not None:
         k = np.asarray(psf, dtype=np.complex128).ravel()
@@ -505,7 +515,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                       "field_config": fp["field"]}, ckpt_path)
 
     if start == 0:
-        _init_amplitude(field, amp_mod, data, survey, cfg, device, dtype, psf_t)
+        _init_amplitude(model, amp_mod, data, survey, cfg, device, dtype, psf_t)
     it_done = start
     t_loop = time.perf_counter()
     with heap_cache(cfg.heap_cache and device.type == "cpu"):
@@ -517,7 +527,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
-                loss, data_loss = _iteration_loss(field, amp_mod, data, survey, cfg, it, device, dtype, tv_delta,
+                loss, data_loss = _iteration_loss(model, amp_mod, data, survey, cfg, it, device, dtype, tv_delta,
                                                   psf_t)
                 loss_value = float(loss.detach())
                 if not math.isfinite(loss_value):

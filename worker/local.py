@@ -59,11 +59,15 @@ def _watch_parent(parent_pid: int) -> None:
 
 def run_local_worker(parent_pid: int | None = None) -> None:
     """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
+    from .logs import configure_logging
+    from .priority import lower_priority
     from .runner import execute_job, request_shutdown, worker_id
     from .settings import get_settings
     from .store import JobStore
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    settings = get_settings()
+    configure_logging(settings.log_format, "info")
+    lower_priority(settings.worker_nice)  # before torch starts its threads
     stopping = threading.Event()
 
     def on_term(*_) -> None:
@@ -77,7 +81,6 @@ def run_local_worker(parent_pid: int | None = None) -> None:
     if parent_pid is not None:
         _die_with_parent(parent_pid)
         threading.Thread(target=_watch_parent, args=(parent_pid,), name="shsas-parent-watch", daemon=True).start()
-    settings = get_settings()
     store = JobStore.from_settings(settings)
     owner = worker_id()
     log.info("local worker %s polling %s", owner, settings.db_url.split("@")[-1])
@@ -94,7 +97,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
             store.release(job.id, owner)
             break
         status = execute_job(store, settings, job.id, owner, claimed=job)
-        log.info("job %s: %s", job.id, status)
+        log.info("job %s: %s", job.id, status, extra={"job_id": job.id, "status": status})
 
 
 class LocalWorkerSupervisor:

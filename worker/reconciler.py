@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import logging
 import shutil
-import threading
 
 from .dispatch import broker_was_emptied, dispatch
+from .periodic import Periodic
 from .settings import Settings
 from .store import JobStore
 
@@ -61,30 +61,18 @@ def reconcile_once(store: JobStore, settings: Settings) -> tuple[int, int]:
             shutil.rmtree(settings.jobs_dir() / job.id / "out", ignore_errors=True)
             log.warning("job %s cancelled after its worker was lost", job.id)
         else:
-            log.error("job %s failed after %d lost attempts", job.id, job.attempts)
+            log.error("job %s failed: its worker died %d times without a word (most often killed for "
+                      "memory); not retried", job.id, job.attempts,
+                      extra={"job_id": job.id, "status": "failed", "attempt": job.attempts,
+                             "reason": "worker lost (stale lease) SHSAS_MAX_ATTEMPTS times"})
     redispatch_queued(store, settings)
     return len(requeued), len(failed)
 
 
-class Reconciler:
+class Reconciler(Periodic):
     """A daemon thread calling :func:`reconcile_once` every ``reconcile_interval_s``."""
 
     def __init__(self, store: JobStore, settings: Settings):
         self.store, self.settings = store, settings
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._loop, name="shsas-reconciler", daemon=True)
-
-    def start(self) -> Reconciler:
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=5)
-
-    def _loop(self) -> None:
-        while not self._stop.wait(self.settings.reconcile_interval_s):
-            try:
-                reconcile_once(self.store, self.settings)
-            except Exception:  # the database may be briefly away; try again next tick
-                log.exception("reconciler pass failed")
+        super().__init__("shsas-reconciler", settings.reconcile_interval_s,
+                         lambda: reconcile_once(store, settings), log, "reconciler pass")

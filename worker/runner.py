@@ -57,6 +57,11 @@ def job_paths(settings: Settings, job_id: str) -> tuple[Path, Path]:
     return base / "input", base / "out"
 
 
+def remove_job_files(settings: Settings, job_id: str) -> None:
+    """Delete everything a job has on disk (its input and outputs)."""
+    shutil.rmtree(settings.jobs_dir() / job_id, ignore_errors=True)
+
+
 class JobControl:
     """The ``progress`` / ``should_stop`` pair handed to the pipeline, plus a heartbeat thread.
 
@@ -97,8 +102,10 @@ class JobControl:
         while not self._stop.wait(self.settings.heartbeat_interval_s):
             self._write()  # the lease tolerates a few missed beats
             if time.monotonic() - self._t0 > self.settings.job_hard_time_limit_s:
-                log.error("job %s passed the hard time limit; ending the worker process", self.job_id)
-                self.store.finish(self.job_id, self.owner, "failed", error=self._limit_message("hard"))
+                reason = self._limit_message("hard")
+                log.error("job %s failed: %s; ending the worker process", self.job_id, reason,
+                          extra={"job_id": self.job_id, "status": "failed", "reason": reason})
+                self.store.finish(self.job_id, self.owner, "failed", error=reason)
                 os._exit(70)
 
     def _limit_message(self, kind: str) -> str:
@@ -183,23 +190,21 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
                          memory_budget=settings.worker_memory_bytes)
         except Cancelled:
             if ctl.lost_lease:
-                return "lost"  # the new owner works in this out_dir; leave it alone
+                return _lost(store, settings, job)
             if ctl.timed_out and not ctl.cancel:
-                store.finish(job.id, owner, "failed", error=ctl._limit_message("soft"))
-                return "failed"
+                return _fail(store, job, owner, ctl._limit_message("soft"))
             if _shutdown.is_set() and not ctl.cancel:
                 _release(store, settings, job, owner)
                 return "released"
             # No half-written artifacts kept: a cancelled job's outputs go entirely.
             shutil.rmtree(out_dir, ignore_errors=True)
             store.finish(job.id, owner, "cancelled", artifacts=[])
+            log.info("job %s cancelled", job.id, extra={"job_id": job.id, "status": "cancelled"})
             return "cancelled"
         except ShsasError as exc:
-            store.finish(job.id, owner, "failed", error=str(exc)[:2000])
-            return "failed"
+            return _fail(store, job, owner, str(exc)[:2000])
         except MemoryError:
-            store.finish(job.id, owner, "failed", error="the job ran out of memory (try a smaller grid or fewer rays)")
-            return "failed"
+            return _fail(store, job, owner, "the job ran out of memory (try a smaller grid or fewer rays)")
         artifacts = _checked_artifacts(out_dir, list(result.artifacts))
         metrics = {m: {k: float(v) for k, v in d.items() if isinstance(v, int | float)}
                    for m, d in result.metrics.items()}
@@ -208,19 +213,41 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         for w in warnings:
             log.warning("job %s: %s: %s (%.3g vs limit %.3g)", job.id, w["method"], w["message"],
                         w["measure"], w["limit"])
-        ok = store.finish(job.id, owner, "succeeded", artifacts=artifacts, metrics=metrics, warnings=warnings)
-        return "succeeded" if ok else "lost"
+        if not store.finish(job.id, owner, "succeeded", artifacts=artifacts, metrics=metrics, warnings=warnings):
+            return _lost(store, settings, job)
+        log.info("job %s succeeded", job.id, extra={"job_id": job.id, "status": "succeeded",
+                                                    "artifacts": len(artifacts), "warnings": len(warnings)})
+        return "succeeded"
     except Exception as exc:  # report, never crash the worker on one bad job
-        log.error("job %s failed:\n%s", job.id, traceback.format_exc())
+        log.error("job %s: unexpected error:\n%s", job.id, traceback.format_exc())
         name = "soft time limit" if type(exc).__name__ == "SoftTimeLimitExceeded" else type(exc).__name__
-        store.finish(job.id, owner, "failed", error=f"internal error ({name}): {str(exc)[:500]}")
-        return "failed"
+        return _fail(store, job, owner, f"internal error ({name}): {str(exc)[:500]}")
     except (SystemExit, KeyboardInterrupt):
         # Stopped by an exception rather than request_shutdown() (e.g. a pool child's exit).
         _release(store, settings, job, owner)
         raise
     finally:
         ctl.close()
+
+
+def _fail(store: JobStore, job: Job, owner: str, reason: str) -> str:
+    """Fail the job with ``reason``, and say why in the worker's log too."""
+    store.finish(job.id, owner, "failed", error=reason)
+    log.error("job %s failed: %s", job.id, reason, extra={"job_id": job.id, "status": "failed",
+                                                          "attempt": job.attempts, "reason": reason})
+    return "failed"
+
+
+def _lost(store: JobStore, settings: Settings, job: Job) -> str:
+    """This worker no longer holds the job. If another worker took it over, its out_dir is that
+    worker's now; if the job was deleted (DELETE, retention), what this run wrote goes too."""
+    if not store.exists(job.id):
+        remove_job_files(settings, job.id)
+        log.info("job %s was deleted while it ran; its files are removed", job.id,
+                 extra={"job_id": job.id, "status": "deleted"})
+    else:
+        log.warning("job %s: lease lost to another worker", job.id, extra={"job_id": job.id, "status": "lost"})
+    return "lost"
 
 
 def _release(store: JobStore, settings: Settings, job: Job, owner: str) -> None:

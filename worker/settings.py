@@ -55,6 +55,33 @@ class Settings(BaseSettings):
     local_poll_interval_s: float = Field(0.5, gt=0, description="embedded worker: how often it looks for queued jobs")
     page_size_max: int = Field(100, ge=1, le=1000)
 
+    # ---- limits: quotas and the cost cap (service/quotas.py applies them) -----------------------
+    max_active_jobs_per_key: int = Field(
+        20, ge=1, description="queued plus running jobs one API key may have; the next submission gets 429")
+    max_train_samples: float = Field(
+        1e11, gt=0, description="cost cap of a spec: iterations x pings per batch x rays x bins of one neural "
+        "method (the paper preset is 4.8e10); a larger spec gets 422")
+    max_grid_voxels: int = Field(
+        512**3, ge=8**3, description="cost cap of a spec: grid^3 (the explicit grid, or the automatic one "
+        "from the survey's scene box); a larger spec gets 422")
+
+    # ---- lifecycle: retention and sweeping (worker/sweeper.py) ----------------------------------
+    retention_days: float = Field(
+        30.0, ge=0, description="finished jobs (succeeded, failed, cancelled) older than this are deleted "
+        "with their files; 0 keeps them forever")
+    sweep_interval_s: float = Field(
+        600.0, gt=0, description="how often the sweeper applies retention and removes abandoned uploads")
+    delete_wait_s: float = Field(
+        10.0, ge=0, description="DELETE of a running job: how long it waits for the job's cancel to land "
+        "before it removes the job anyway")
+
+    # ---- operations ---------------------------------------------------------------------------
+    log_format: str = Field("json", pattern=r"^(json|text)$",
+                            description="service logs: one JSON object per line, or plain text")
+    worker_nice: int = Field(
+        10, ge=0, le=19, description="scheduling niceness the workers add to themselves, so the API "
+        "keeps the CPU it needs while a job trains")
+
     @model_validator(mode="after")
     def _limits(self) -> Settings:
         if self.job_hard_time_limit_s <= self.job_soft_time_limit_s:

@@ -318,6 +318,53 @@ class JobStore:
                                        stage="failed", idempotency_key=None))  # a retry may reuse the key
         return res.rowcount == 1
 
+    def count_active(self, owner: str) -> int:
+        """Queued plus running jobs of ``owner`` (the per-key quota counts these)."""
+        with self.engine.connect() as conn:
+            return int(conn.execute(sa.select(sa.func.count()).select_from(jobs).where(
+                jobs.c.owner == owner, jobs.c.status.in_(("queued", "running")))).scalar() or 0)
+
+    def queue_position(self, job: Job) -> int:
+        """Queued jobs of any owner ahead of ``job`` in its queue (0: it is next)."""
+        ahead = sa.or_(jobs.c.created_at < job.created_at,
+                       sa.and_(jobs.c.created_at == job.created_at, jobs.c.id < job.id))
+        with self.engine.connect() as conn:
+            return int(conn.execute(sa.select(sa.func.count()).select_from(jobs).where(
+                jobs.c.status == "queued", jobs.c.queue == job.queue, ahead)).scalar() or 0)
+
+    def queue_rate(self, queue: str, recent: int = 20) -> tuple[float | None, list[Job]]:
+        """What an ETA is made of: the mean run time (s) of the last ``recent`` jobs that ran to
+        an end in ``queue`` (None before any did), and the jobs running there now."""
+        ran = (jobs.c.queue == queue) & jobs.c.status.in_(("succeeded", "failed")) & jobs.c.started_at.isnot(None)
+        with self.engine.connect() as conn:
+            last = (sa.select((jobs.c.finished_at - jobs.c.started_at).label("d")).where(ran)
+                    .order_by(jobs.c.finished_at.desc()).limit(recent).subquery())
+            mean = conn.execute(sa.select(sa.func.avg(last.c.d))).scalar()
+            running = [Job.from_row(r) for r in conn.execute(
+                jobs.select().where(jobs.c.queue == queue, jobs.c.status == "running"))]
+        return (float(mean) if mean is not None else None), running
+
+    def delete(self, job_id: str, owner: str | None = None) -> bool:
+        """Remove the job's row (with ``owner``: only that owner's). Its worker, if any, loses
+        the lease at its next heartbeat. True if a row went."""
+        q = jobs.delete().where(jobs.c.id == job_id)
+        if owner is not None:
+            q = q.where(jobs.c.owner == owner)
+        with self._tx() as conn:
+            return conn.execute(q).rowcount == 1
+
+    def finished_before(self, cutoff: float, limit: int = 500) -> list[Job]:
+        """Finished jobs (succeeded, failed, cancelled) that ended before ``cutoff``, oldest first."""
+        with self.engine.connect() as conn:
+            rows = conn.execute(jobs.select().where(jobs.c.status.in_(tuple(TERMINAL)),
+                                                    jobs.c.finished_at < cutoff)
+                                .order_by(jobs.c.finished_at).limit(limit))
+            return [Job.from_row(r) for r in rows]
+
+    def exists(self, job_id: str) -> bool:
+        with self.engine.connect() as conn:
+            return conn.execute(sa.select(jobs.c.id).where(jobs.c.id == job_id)).first() is not None
+
     def count_by_status(self) -> dict[str, int]:
         with self.engine.connect() as conn:
             rows = conn.execute(sa.select(jobs.c.status, sa.func.count()).group_by(jobs.c.status))

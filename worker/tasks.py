@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 
+from celery.signals import worker_process_init
+
 from .app import app
 from .celery_app import TASK_NAME
 from .runner import execute_job
@@ -23,9 +25,21 @@ def _get_store() -> JobStore:
     return _store
 
 
+@worker_process_init.connect
+def _pool_child_start(**_) -> None:
+    """In each pool child, before it runs a task: the service log format and a lower CPU
+    priority than the API (the child is where the job's threads run)."""
+    from .logs import configure_logging
+    from .priority import lower_priority
+
+    settings = get_settings()
+    configure_logging(settings.log_format, logging.getLogger("shsas").level or "info")
+    lower_priority(settings.worker_nice)
+
+
 @app.task(name=TASK_NAME, acks_late=True, reject_on_worker_lost=True, ignore_result=True)
 def run_job(job_id: str) -> str:
     """Run one job by id. Duplicate or stale deliveries are harmless: the claim fails."""
     status = execute_job(_get_store(), get_settings(), job_id)
-    log.info("job %s: %s", job_id, status)
+    log.info("job %s: %s", job_id, status, extra={"job_id": job_id, "status": status})
     return status

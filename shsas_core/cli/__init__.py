@@ -15,7 +15,7 @@ from .. import __version__
 from ..errors import Cancelled, ShsasError
 
 #: Subcommand modules, in the order of the help text (data flow order).
-COMMANDS = ["info", "convert", "simulate", "backproject", "fit", "reconstruct", "evaluate", "demo",
+COMMANDS = ["info", "convert", "simulate", "autofocus", "backproject", "fit", "reconstruct", "evaluate", "demo",
             "serve", "worker", "keys"]
 
 

@@ -37,6 +37,8 @@ def run(args: argparse.Namespace) -> int:
 
     table = Table(title=f"survey: {args.file}", show_header=False)
     for k, v in s.items():
+        if k == "elevation":  # the sentence says what the numbers mean for imaging
+            v = v["message"]
         table.add_row(k, json.dumps(v) if isinstance(v, dict | list) else str(v))
     Console().print(table)
     return 0

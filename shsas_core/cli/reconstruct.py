@@ -62,6 +62,12 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--init", choices=["backprojection", "none"], default=None,
                    help="start of the neural methods: backprojection = distil the backprojection image "
                    f"into the field first, none = the paper's empty field {_default('init')}")
+    g.add_argument("--occupancy", type=_level_or_none, default=None, metavar="LEVEL",
+                   help="occupancy grid of the neural methods: evaluate the field only where the "
+                   "backprojection image's normalised magnitude exceeds LEVEL (dilated 2 voxels); "
+                   f"'none' = the whole scene box {_default('occupancy')}")
+    g.add_argument("--sparsity", type=float, default=None, metavar="WEIGHT",
+                   help=f"weight of the L1 sparsity prior on the field's density, 0 = off {_default('sparsity')}")
     g.add_argument("--encoding", choices=["cpu", "small", "paper_gpu"], default=None,
                    help="hash-encoding preset: cpu, small (fastest, short CPU runs), paper_gpu "
                    f"{_default('encoding')}")
@@ -70,6 +76,20 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
                    f"envelope = |s_PD| (see docs/neural.md) {_default('target')}")
     g.add_argument("--holdout", type=float, default=None, metavar="FRACTION",
                    help=f"share of pings held out for novel-view signal errors {_default('holdout_fraction')}")
+
+
+_NONE = "none"
+
+
+def _level_or_none(text: str) -> float | str:
+    """``--occupancy`` value: a float, or ``none`` (mapped to None below); anything else is left
+    to the spec's validation, which names the option in its one-line error."""
+    if text.strip().lower() == _NONE:
+        return _NONE
+    try:
+        return float(text)
+    except ValueError:
+        return text
 
 
 def spec_from_args(args: argparse.Namespace, **defaults: object):
@@ -82,7 +102,8 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
               "device": "device", "threshold": "threshold", "deconv": "deconvolution", "seed": "seed",
               "bins": "num_bins", "rays": "num_rays", "pings_per_batch": "pings_per_batch",
               "holdout": "holdout_fraction", "lr": "lr", "lr_final": "lr_final", "encoding": "encoding",
-              "target": "target", "init": "init", "forward": "forward"}
+              "target": "target", "init": "init", "forward": "forward", "occupancy": "occupancy",
+              "sparsity": "sparsity"}
     from ..spec import PRESETS
 
     kw: dict[str, object] = dict(defaults)
@@ -90,7 +111,7 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
     for opt, field in fields.items():
         v = getattr(args, opt, None)
         if v is not None:
-            kw[field] = v
+            kw[field] = None if v == _NONE else v
     if isinstance(kw.get("methods"), str):
         kw["methods"] = [m.strip() for m in str(kw["methods"]).split(",") if m.strip()]
     try:

@@ -46,6 +46,9 @@ def run(args: argparse.Namespace) -> int:
     except pydantic.ValidationError as exc:
         err = exc.errors()[0]
         raise ShsasError(f"settings: SHSAS_{'_'.join(map(str, err['loc'])).upper()}: {err['msg']}") from None
+    from worker.logs import configure_logging
+
+    configure_logging(settings.log_format, args.log_level)
     app = create_app(settings)
     # uvicorn shuts down gracefully on SIGTERM, then re-raises it with the handler it found:
     # the default one would end this process before the `finally` below stops the worker.

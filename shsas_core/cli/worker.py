@@ -40,8 +40,11 @@ def run(args: argparse.Namespace) -> int:
         raise ShsasError("worker: SHSAS_BROKER_URL is not set; `shsas serve` runs its own local worker in "
                          "that case (set SHSAS_BROKER_URL=redis://host:6379/0 for separate workers)")
     from worker.app import app
+    from worker.logs import configure_logging
     from worker.reconciler import Reconciler
     from worker.store import JobStore
+
+    configure_logging(settings.log_format, args.log_level)  # pool children inherit it (fork)
 
     rec = None if args.no_reconcile else Reconciler(JobStore.from_settings(settings), settings).start()
     queues = args.queues or f"{settings.gpu_queue},{settings.cpu_queue}"

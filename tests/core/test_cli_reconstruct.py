@@ -82,6 +82,8 @@ def test_a_failed_result_prints_a_warning_and_reaches_the_report(survey_file, tm
     (["reconstruct", "missing.h5", "--out", "o"], "missing.h5"),
     (["reconstruct", "x.h5", "--out", "o", "--methods", "backprojection,nope"], "--methods"),
     (["reconstruct", "x.h5", "--out", "o", "--threshold", "1.5"], "--threshold"),
+    (["reconstruct", "x.h5", "--out", "o", "--occupancy", "most"], "--occupancy"),
+    (["reconstruct", "x.h5", "--out", "o", "--occupancy", "1.5"], "occupancy"),
     (["evaluate", "nowhere", "--gt", "sphere"], "nowhere"),
     (["evaluate", ".", "--gt", "sphere", "--box", "1,2"], "--box"),
 ])
@@ -131,6 +133,18 @@ def test_paper_preset_is_one_flag_away():
     assert spec.iters == 9 and spec.init == "none"
 
 
+def test_occupancy_and_sparsity_options():
+    from shsas_core.cli import build_parser
+    from shsas_core.cli.reconstruct import spec_from_args
+
+    parser = build_parser()
+    base = ["reconstruct", "x.h5", "--out", "o"]
+    spec = spec_from_args(parser.parse_args([*base, "--occupancy", "none", "--sparsity", "0"]))
+    assert spec.occupancy is None and spec.sparsity == 0.0
+    spec = spec_from_args(parser.parse_args([*base, "--occupancy", "0.1", "--sparsity", "2.5"]))
+    assert spec.occupancy == 0.1 and spec.sparsity == 2.5
+
+
 def test_help_reports_the_spec_defaults():
     """The CLI's help text takes each default from the spec, so the two cannot disagree."""
     from shsas_core.cli import build_parser
@@ -140,7 +154,8 @@ def test_help_reports_the_spec_defaults():
     text = text.split("reconstruction spec (defaults", 1)[1]  # the options' section, not the usage
     d = ReconstructionSpec()
     for opt, value in (("--iters", d.iters), ("--lr", d.lr), ("--bins", d.num_bins), ("--rays", d.num_rays),
-                       ("--init", d.init), ("--target", d.target)):
+                       ("--init", d.init), ("--target", d.target), ("--occupancy", d.occupancy),
+                       ("--sparsity", d.sparsity)):
         assert f"(default {value})" in text.split(opt, 1)[1].split(" --", 1)[0], opt
 
 

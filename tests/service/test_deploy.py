@@ -162,8 +162,10 @@ def test_dockerfile_references() -> None:
     assert core_env == {"SHSAS_CACHE_DIR", "SHSAS_NATIVE"}
     for name in re.findall(r"\bSHSAS_[A-Z_]+", text):
         assert name in SETTING_ENV | core_env, name
-    for src in re.findall(r"^COPY (\S+) ", text, re.M):
+    for src in re.findall(r"^COPY (?!--from=)(\S+) ", text, re.M):
         assert (REPO / src).exists(), src
+    # the console is built in its own stage and only its bundle is copied into the image
+    assert re.search(r"^COPY --from=console \S+ \./service/console/static$", text, re.M)
     assert 'ARG VARIANT=cpu' in text and '"$VARIANT" = "cuda"' in text
     # The service extra the image installs exists in pyproject.
     assert re.search(r"^service = \[", (REPO / "pyproject.toml").read_text(), re.M)
@@ -172,7 +174,8 @@ def test_dockerfile_references() -> None:
 def test_docs_name_only_real_settings() -> None:
     for doc in (REPO / "docs/service.md", REPO / "deploy/README.md"):
         for name in set(re.findall(r"\bSHSAS_[A-Z_]+[A-Z]", doc.read_text())):
-            assert name in SETTING_ENV | {"SHSAS_TEST_PG_URL", "SHSAS_TEST_REDIS_URL", "SHSAS_SHARED"}, (doc, name)
+            assert name in SETTING_ENV | {"SHSAS_TEST_PG_URL", "SHSAS_TEST_REDIS_URL", "SHSAS_SHARED",
+                                         "SHSAS_REQUIRE_BROWSER", "SHSAS_UPDATE_SCREENSHOTS"}, (doc, name)
 
 
 def test_cli_commands_have_subparsers() -> None:

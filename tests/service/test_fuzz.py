@@ -75,7 +75,9 @@ def test_no_server_errors(server, mode: str) -> None:
     labels = {op.label for op in ops}
     assert {"POST /reconstructions", "GET /reconstructions", "GET /reconstructions/{job_id}",
             "POST /reconstructions/{job_id}/cancel", "GET /reconstructions/{job_id}/artifacts",
-            "GET /reconstructions/{job_id}/artifacts/{name}", "GET /healthz", "GET /readyz"} <= labels
+            "GET /reconstructions/{job_id}/artifacts/{name}", "GET /healthz", "GET /readyz",
+            "DELETE /reconstructions/{job_id}", "HEAD /reconstructions/{job_id}/artifacts/{name}",
+            "HEAD /healthz", "HEAD /readyz"} <= labels
     failures, fuzzed = [], []
     for op in ops:
         cases = op.as_strategy(generation_mode=schemathesis.GenerationMode(mode))
@@ -141,3 +143,22 @@ def test_artifact_headers_on_a_real_file(server, artifact) -> None:
 
     failure = _fuzz(server["base"], op.label, cases(), 4 * MAX_EXAMPLES)
     assert failure is None, failure
+
+
+@pytest.mark.parametrize("path", ["/reconstructions/{job_id}/extract", "/reconstructions/{job_id}/extract/{name}",
+                                  "/reconstructions/{job_id}/survey"])
+def test_console_routes_on_a_real_job(server, artifact, path: str) -> None:
+    """Generated input for the routes made for the console, aimed at a finished job (random job
+    ids only ever reach the 404): re-extraction levels and methods, file names."""
+    api = schemathesis.openapi.from_url(server["base"] + "/openapi.json")
+    op = api[path]["GET"]
+    failures = []
+    for mode in ("positive", "negative"):
+        cases = op.as_strategy(path_parameters={"job_id": artifact["job_id"]},
+                               generation_mode=schemathesis.GenerationMode(mode))
+        try:
+            failures.append(_fuzz(server["base"], f"{op.label} ({mode})", cases, MAX_EXAMPLES))
+        except Unsatisfiable:
+            assert mode == "negative" and path.endswith("/survey"), f"{op.label}: nothing to generate"
+    failures = [f for f in failures if f]
+    assert not failures, "\n\n".join(failures)

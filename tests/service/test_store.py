@@ -159,3 +159,66 @@ def test_api_keys_hashed_verify_revoke(store: JobStore) -> None:
     assert token.split("_", 2)[2] not in stored  # only the hash is at rest
     assert store.revoke_key(rec.id) and not store.revoke_key(rec.id)
     assert store.verify_key(token) is None and not store.has_active_keys()
+
+
+# ---- issue 13, items 8, 9, 11: quota count, queue position and rate, deletion, retention ----------
+
+def test_count_active_counts_queued_and_running_of_one_owner(store: JobStore) -> None:
+    a1, _ = new_job(store, "alice")
+    a2, _ = new_job(store, "alice")
+    new_job(store, "bob")
+    assert store.count_active("alice") == 2
+    store.claim(a1.id, "w")
+    assert store.count_active("alice") == 2  # running still counts
+    store.finish(a1.id, "w", "succeeded", artifacts=[])
+    store.request_cancel(a2.id, "alice")
+    assert store.count_active("alice") == 0 and store.count_active("bob") == 1
+
+
+def test_queue_position_counts_every_owner_ahead_in_the_same_queue(store: JobStore) -> None:
+    first, _ = new_job(store, "alice")
+    new_job(store, "carol", queue="gpu")  # another queue: not ahead
+    second, _ = new_job(store, "bob")
+    third, _ = new_job(store, "alice")
+    assert [store.queue_position(j) for j in (first, second, third)] == [0, 1, 2]
+    store.claim(first.id, "w")  # left the queue
+    assert store.queue_position(third) == 1
+
+
+def test_queue_rate_is_the_mean_run_time_of_recent_jobs(store: JobStore) -> None:
+    assert store.queue_rate("cpu") == (None, [])
+    done = []
+    for _ in range(2):
+        job, _ = new_job(store)
+        store.claim(job.id, "w")
+        store.finish(job.id, "w", "succeeded", artifacts=[])
+        done.append(store.get(job.id))
+    running, _ = new_job(store)
+    store.claim(running.id, "w")
+    mean, busy = store.queue_rate("cpu")
+    expected = sum(j.finished_at - j.started_at for j in done) / 2
+    assert mean == pytest.approx(expected, abs=1e-6) and [j.id for j in busy] == [running.id]
+    assert store.queue_rate("gpu") == (None, [])
+
+
+def test_delete_is_owner_only_and_ends_the_lease(store: JobStore) -> None:
+    job, _ = new_job(store, "alice")
+    store.claim(job.id, "w")
+    assert not store.delete(job.id, "bob") and store.exists(job.id)
+    assert store.delete(job.id, "alice") and not store.exists(job.id)
+    assert store.heartbeat(job.id, "w") == (False, False)  # the worker learns it lost the job
+    assert not store.finish(job.id, "w", "succeeded", artifacts=[])
+
+
+def test_finished_before_lists_only_finished_jobs_past_the_cutoff(store: JobStore) -> None:
+    old, _ = new_job(store)
+    store.claim(old.id, "w")
+    store.finish(old.id, "w", "failed", error="x")
+    cancelled, _ = new_job(store)
+    store.request_cancel(cancelled.id, "alice")
+    new_job(store)  # queued
+    running, _ = new_job(store)
+    store.claim(running.id, "w")
+    cutoff = time.time() + 1
+    assert [j.id for j in store.finished_before(cutoff)] == [old.id, cancelled.id]
+    assert store.finished_before(time.time() - 3600) == []

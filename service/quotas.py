@@ -1,0 +1,76 @@
+"""Per-key quotas and the cost cap of a spec (issue 13, item 11).
+
+The limits themselves are settings (``SHSAS_MAX_ACTIVE_JOBS_PER_KEY``, ``SHSAS_MAX_TRAIN_SAMPLES``,
+``SHSAS_MAX_GRID_VOXELS`` in :class:`worker.settings.Settings`); this module only applies them
+and words the refusal, naming the limit and the setting that raises it.
+"""
+
+from __future__ import annotations
+
+from shsas_core.spec import ReconstructionSpec
+from shsas_core.survey import SceneBox
+from shsas_core.volume import auto_grid_count
+from worker.settings import Settings
+
+from .uploads import UploadError
+
+#: Methods that train a neural field (their cost grows with iterations x rays x bins).
+NEURAL = ("reed", "shsas")
+
+
+def train_samples(spec: ReconstructionSpec) -> int:
+    """Samples one neural method renders over its whole fit: iterations x pings per batch x rays
+    x bins (0 without a neural method)."""
+    if not any(m in NEURAL for m in spec.methods):
+        return 0
+    return spec.iters * spec.pings_per_batch * spec.num_rays * spec.num_bins
+
+
+def max_grid(voxels: int) -> int:
+    """The largest grid whose cube is at most ``voxels``."""
+    n = round(voxels ** (1 / 3))
+    while n**3 > voxels:
+        n -= 1
+    while (n + 1) ** 3 <= voxels:
+        n += 1
+    return n
+
+
+def check_spec_cost(spec: ReconstructionSpec, settings: Settings, box: SceneBox | None = None) -> None:
+    """Refuse a spec over the cost cap (422 naming the limit).
+
+    The grid is checked when it is explicit, or, with ``box`` (the survey's scene box, known after
+    validation), the automatic grid the pipeline would pick for it.
+    """
+    samples = train_samples(spec)
+    if samples > settings.max_train_samples:
+        raise UploadError(422, (
+            f"spec: iters x pings_per_batch x num_rays x num_bins = {spec.iters} x {spec.pings_per_batch} x "
+            f"{spec.num_rays} x {spec.num_bins} = {samples:.3g} training samples, over the limit of "
+            f"{settings.max_train_samples:.3g} (SHSAS_MAX_TRAIN_SAMPLES) (fix: lower iters, num_rays or "
+            "num_bins, or ask the operator to raise the limit)"))
+    grid = spec.grid if spec.grid is not None else (auto_grid_count(box) if box is not None else None)
+    if grid is not None and grid**3 > settings.max_grid_voxels:
+        which = "spec.grid" if spec.grid is not None else "spec.grid (automatic, from the scene box)"
+        raise UploadError(422, (
+            f"{which}: {grid}^3 = {grid**3} voxels, over the limit of {settings.max_grid_voxels} "
+            f"(SHSAS_MAX_GRID_VOXELS: grid {max_grid(settings.max_grid_voxels)} at most) "
+            "(fix: give a smaller grid, or ask the operator to raise the limit)"))
+
+
+def check_active_jobs(active: int, settings: Settings) -> None:
+    """Refuse a submission past the key's quota of queued and running jobs (429)."""
+    limit = settings.max_active_jobs_per_key
+    if active >= limit:
+        raise UploadError(429, (
+            f"this API key already has {active} queued or running jobs, the limit is {limit} "
+            "(SHSAS_MAX_ACTIVE_JOBS_PER_KEY) (fix: wait for some to finish, or cancel some with "
+            "POST /reconstructions/{id}/cancel, then resubmit)"))
+
+
+def box_of(summary: dict) -> SceneBox | None:
+    """The scene box of a validation summary (``scene_box_m``), or None if it has none."""
+    box = summary.get("scene_box_m") if isinstance(summary, dict) else None
+    if not box:
+        return None
+    return SceneBox(min=tuple(box["min"]), max=tuple(box["max"]))

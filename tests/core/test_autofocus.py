@@ -1,0 +1,105 @@
+"""Autofocus on simulated surveys with known errors, the correction it writes, and its CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from shsas_core.autofocus import AutofocusConfig, Correction, apply_correction, autofocus
+from shsas_core.cli import main
+from shsas_core.errors import ShsasError
+from shsas_core.io import read_survey, write_survey
+
+from .focus_scenes import PLANE_Z, levels_scene, perturbed, plane_scene
+
+
+@pytest.fixture(scope="module")
+def plane():
+    return plane_scene()
+
+
+@pytest.fixture(scope="module")
+def levels():
+    return levels_scene()
+
+
+def test_apply_correction_moves_geometry_and_keeps_the_original(levels):
+    s = levels
+    c0 = s.meta.sound_speed
+    corr = Correction(sound_speed=c0 * 1.01, range_offset_m=0.004, level_z_m=(0.0, 0.002, -0.001),
+                      radius_offset_m=0.003)
+    out = apply_correction(s, corr)
+    lv = np.repeat([0.0, 0.002, -0.001], 60)  # the simulator's ping order: level by level
+    assert np.allclose(out.tx[:, 2] - s.tx[:, 2], lv) and np.allclose(out.rx[:, 2] - s.rx[:, 2], lv)
+    r0, r1 = np.hypot(*s.tx[:, :2].T), np.hypot(*out.tx[:, :2].T)
+    assert np.allclose(r1 - r0, 0.003)
+    # the offset is a time: 2 dr / c with the survey's own sound speed; t0 stays >= 0 by
+    # dropping leading samples (the same data on the same absolute time axis)
+    shift = 2 * 0.004 / c0
+    drop = out.samples.shape[1] - s.samples.shape[1]
+    k = -drop
+    assert np.allclose(out.t0, s.t0 - shift + k / s.meta.fs)
+    assert np.array_equal(out.samples, s.samples[:, k:]) and out.t0.min() >= 0
+    assert out.meta.sound_speed == pytest.approx(c0 * 1.01)
+    record = json.loads(out.meta.attrs["autofocus"])
+    assert record["original"]["sound_speed"] == c0
+    assert out.meta.attrs["autofocus_original_sound_speed"] == c0
+    assert record["correction"]["level_z_m"] == [0.0, 0.002, -0.001]
+
+
+@pytest.mark.parametrize("rel", [0.02, -0.02])
+def test_plane_scene_sound_speed_recovered(plane, rel):
+    bad = perturbed(plane, sound_speed_rel=rel)
+    res = autofocus(bad, config=AutofocusConfig(parameters=("sound_speed",), plane_z=PLANE_Z))
+    assert res.correction.sound_speed / plane.meta.sound_speed - 1 == pytest.approx(0, abs=0.002)
+    assert res.cost_after < res.cost_before
+
+
+@pytest.mark.parametrize("dr", [0.005, -0.005])
+def test_plane_scene_range_offset_recovered(plane, dr):
+    bad = perturbed(plane, range_offset_m=dr)
+    res = autofocus(bad, config=AutofocusConfig(parameters=("range_offset",), plane_z=PLANE_Z))
+    assert res.correction.range_offset_m == pytest.approx(dr, abs=0.001)
+
+
+def test_plane_scene_radius_recovered(plane):
+    bad = perturbed(plane, radius_m=0.004)
+    res = autofocus(bad, config=AutofocusConfig(parameters=("radius",), plane_z=PLANE_Z))
+    assert res.correction.radius_offset_m == pytest.approx(-0.004, abs=0.001)
+
+
+def test_level_z_on_one_level_and_radius_off_circle_are_refused(plane):
+    with pytest.raises(ShsasError, match="level_z needs at least two height levels"):
+        autofocus(plane, config=AutofocusConfig(parameters=("level_z",)))
+    import dataclasses
+
+    shift = np.array([0.2, 0.0, 0.0])
+    off = dataclasses.replace(plane, tx=plane.tx + shift, rx=plane.rx + shift)
+    with pytest.raises(ShsasError, match="radius needs a circular scan"):
+        autofocus(off, config=AutofocusConfig(parameters=("radius",), plane_z=PLANE_Z))
+
+
+def test_cli_writes_the_corrected_survey(plane, tmp_path, capsys):
+    src = write_survey(perturbed(plane, sound_speed_rel=0.02), tmp_path / "bad.h5")
+    out = tmp_path / "fixed.h5"
+    assert main(["autofocus", str(src), str(out), "--params", "sound_speed", "--plane-z", str(PLANE_Z)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    fixed = read_survey(out)
+    assert fixed.meta.sound_speed == pytest.approx(plane.meta.sound_speed, rel=0.002)
+    assert printed["sound_speed_m_s"] == pytest.approx(fixed.meta.sound_speed, abs=1e-3)
+    assert fixed.meta.attrs["autofocus_original_sound_speed"] == pytest.approx(plane.meta.sound_speed * 1.02)
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--params", "speed"], "--params: speed is not a parameter"),
+    (["--pixels", "2"], "--pixels"),
+    (["--params", "level_z"], "level_z needs at least two height levels"),
+])
+def test_cli_bad_options_one_line(plane, tmp_path, capsys, argv, needle):
+    src = write_survey(plane, tmp_path / "s.h5")
+    assert main(["autofocus", str(src), str(tmp_path / "o.h5"), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o.h5").exists()

@@ -1,0 +1,337 @@
+"""The operator console in a real Chromium (Playwright, Debian's chromium) against a real
+`shsas serve`: upload, progress, cancel and delete, the 3-D view, metrics, the iso slider,
+errors beside their fields, the key flow, and no request leaving the server's origin.
+
+Every request the page makes that is not for the server is refused and logged by the browser
+context (the server's "internet" is blocked); each test ends by checking that log is empty.
+``SHSAS_UPDATE_SCREENSHOTS=1`` also writes the screenshots to docs/img/ (the docs' pictures).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+
+from .conftest import REPO, SERVER_START_S, SHSAS, start_server, write_demo_survey
+
+pytestmark = [pytest.mark.service, pytest.mark.slow]
+
+CHROMIUM = os.environ.get("SHSAS_CHROMIUM", "/usr/bin/chromium")
+#: Flags that work in a container without a GPU or a network (SwiftShader draws WebGL).
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+#: The demo job: one quick method on a small grid; the long one is cancelled mid-run.
+DEMO_SPEC = {"methods": "backprojection", "grid": "32", "device": "cpu"}
+LONG_SPEC = {"methods": "shsas", "iters": "100000", "grid": "16", "device": "cpu", "num_rays": "16", "num_bins": "8"}
+#: Share of the viewer's pixels that must differ from the empty canvas once the mesh is shown.
+MIN_DRAWN_SHARE = 0.05
+JOB_TIMEOUT_MS = 180_000
+DOCS_IMG = REPO / "docs" / "img"
+
+
+def _need(what: str) -> None:
+    if os.environ.get("SHSAS_REQUIRE_BROWSER") == "1":
+        pytest.fail(f"{what} (SHSAS_REQUIRE_BROWSER=1: .ci/run installs it)")
+    pytest.skip(what)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        _need("playwright is not installed (pip install -e '.[dev]')")
+    if not Path(CHROMIUM).exists():
+        _need(f"no Chromium at {CHROMIUM} (apt-get install chromium)")
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory) -> Iterator[dict]:
+    if not (REPO / "service/console/static/index.html").is_file():
+        pytest.fail("the console is not built: run `make console` (make test does)")
+    tmp = tmp_path_factory.mktemp("console")
+    # default lease timings: the fast ones of other tests lose leases on a loaded machine
+    env = {"SHSAS_DATA_DIR": str(tmp / "data"), "SHSAS_LOCAL_POLL_INTERVAL_S": "0.2"}
+    proc, base = start_server(tmp, env, timeout=SERVER_START_S)
+    yield {"base": base, "tmp": tmp, "env": env, "demo": write_demo_survey(tmp / "demo.h5")}
+    proc.stop()
+
+
+class Page:
+    """A fresh browser context and page; requests off the server's origin are refused and logged."""
+
+    def __init__(self, browser, base: str, width: int = 1280, height: int = 800):
+        self.base = base
+        self.ctx = browser.new_context(viewport={"width": width, "height": height})
+        self.outside: list[str] = []
+        self.errors: list[str] = []
+        self.ctx.route("**/*", self._route)
+        self.page = self.ctx.new_page()
+        self.page.on("pageerror", lambda e: self.errors.append(str(e)))
+
+    def _route(self, route) -> None:
+        url = route.request.url
+        if url.startswith(self.base + "/") or url.startswith(("data:", "blob:")):
+            route.continue_()
+        else:
+            self.outside.append(url)
+            route.abort("internetdisconnected")
+
+    def close(self) -> None:
+        self.ctx.close()
+        assert not self.outside, f"the page asked for things off the server: {self.outside}"
+        assert not self.errors, f"uncaught errors in the page: {self.errors}"
+
+
+@pytest.fixture
+def ui(browser, server) -> Iterator[Page]:
+    p = Page(browser, server["base"])
+    p.page.goto(server["base"] + "/")
+    p.page.wait_for_selector("#spec-grid")
+    yield p
+    p.close()
+
+
+def fill_spec(page, values: dict[str, str]) -> None:
+    """Set the spec form: ``methods`` is a comma list of the boxes to tick, the rest are inputs."""
+    for name, value in values.items():
+        if name == "methods":
+            for box in page.query_selector_all("input[name=methods]"):
+                box.set_checked(box.get_attribute("value") in value.split(","))
+        else:
+            page.fill(f"#spec-{name}", value)
+
+
+def job_row(page, status: str | None = None):
+    sel = "li.job" + (f"[data-status={status}]" if status else "")
+    return page.wait_for_selector(sel, timeout=JOB_TIMEOUT_MS)
+
+
+def progress_of(row) -> float:
+    return float(row.get_attribute("data-progress"))
+
+
+def shot(page, name: str, tmp: Path, **kw) -> bytes:
+    png = page.screenshot(**kw)
+    (tmp / name).write_bytes(png)
+    if os.environ.get("SHSAS_UPDATE_SCREENSHOTS") == "1":
+        DOCS_IMG.mkdir(parents=True, exist_ok=True)
+        (DOCS_IMG / name).write_bytes(png)
+    return png
+
+
+def test_upload_progress_cancel_delete(ui, server) -> None:
+    page = ui.page
+    page.set_input_files("#survey-input", str(server["demo"]))
+    fill_spec(page, LONG_SPEC)
+    page.click("#submit-btn")
+    row = job_row(page)
+    job_id = row.get_attribute("data-job-id")
+    # the progress moves: two rising values seen on the page while the job runs
+    running = ("id => { const r = document.querySelector(`li.job[data-job-id='${id}']`);"
+               " return r && (r.dataset.status === 'running' && Number(r.dataset.progress) > 0"
+               " || !['queued', 'running'].includes(r.dataset.status)); }")
+    page.wait_for_function(running, arg=job_id, timeout=JOB_TIMEOUT_MS)
+    row = page.query_selector(f"li.job[data-job-id='{job_id}']")
+    assert row.get_attribute("data-status") == "running", page.inner_text(f"li.job[data-job-id='{job_id}']")
+    first = progress_of(row)
+    page.wait_for_function("([id, p]) => Number(document.querySelector(`li.job[data-job-id='${id}']`)"
+                           ".dataset.progress) > p", arg=[job_id, first], timeout=JOB_TIMEOUT_MS)
+    assert "attempts 1" in page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
+    shot(page, "console-running.png", server["tmp"])
+    page.click(f"li.job[data-job-id='{job_id}'] button.cancel")
+    page.wait_for_selector(f"li.job[data-job-id='{job_id}'][data-status=cancelled]", timeout=JOB_TIMEOUT_MS)
+    assert httpx.get(f"{server['base']}/reconstructions/{job_id}").json()["status"] == "cancelled"
+    # delete: DELETE /reconstructions/{id} (a server without it answers 405 and the page says so)
+    supported = "delete" in httpx.get(f"{server['base']}/openapi.json").json()["paths"]["/reconstructions/{job_id}"]
+    page.click(f"li.job[data-job-id='{job_id}'] button.delete")
+    if supported:
+        page.wait_for_selector(f"li.job[data-job-id='{job_id}']", state="detached", timeout=30_000)
+        assert httpx.get(f"{server['base']}/reconstructions/{job_id}").status_code == 404
+    else:
+        page.wait_for_function("() => document.querySelector('#banner').textContent.includes('cannot delete')")
+
+
+def test_demo_job_result_view(ui, server) -> None:
+    from PIL import Image
+
+    page, base = ui.page, server["base"]
+    # the first attempt's connection drops: the page offers a retry, which queues the job once
+    dropped = []
+
+    def drop_once(route):
+        dropped.append(route.request.headers.get("idempotency-key"))
+        route.abort("connectionreset")
+
+    page.route("**/reconstructions", lambda route: drop_once(route) if route.request.method == "POST" and not dropped
+               else route.fallback())
+    before = {j["id"] for j in httpx.get(base + "/reconstructions").json()["items"]}
+    page.set_input_files("#survey-input", str(server["demo"]))
+    fill_spec(page, DEMO_SPEC)
+    page.click("#submit-btn")
+    page.wait_for_selector("#retry-btn:not([hidden])")
+    assert "dropped" in page.inner_text("#upload-status")
+    page.click("#retry-btn")
+    page.wait_for_function("() => document.querySelector('#upload-status').textContent.startsWith('queued as')")
+    new = [j for j in httpx.get(base + "/reconstructions").json()["items"] if j["id"] not in before]
+    assert len(new) == 1 and dropped, new
+    job_id = new[0]["id"]
+    page.wait_for_selector(f"li.job[data-job-id='{job_id}'][data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
+    page.click(f"li.job[data-job-id='{job_id}'] button.open")
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+
+    # the viewer draws the mesh: compare with the same canvas with every layer hidden
+    layers = page.query_selector_all("#layers input[type=checkbox]")
+    on = [box.is_checked() for box in layers]
+    for box in layers:
+        box.set_checked(False)
+    empty = np.asarray(Image.open(io.BytesIO(page.locator("#viewer").screenshot())).convert("RGB"), dtype=np.int16)
+    for box, was in zip(layers, on, strict=True):
+        box.set_checked(was)
+    drawn = np.asarray(Image.open(io.BytesIO(page.locator("#viewer").screenshot())).convert("RGB"), dtype=np.int16)
+    share = float((np.abs(drawn - empty).max(axis=2) > 16).mean())
+    assert share > MIN_DRAWN_SHARE, f"only {share:.3f} of the viewer's pixels show the mesh"
+    scene = page.evaluate("window.__shsasViewer.summary()")
+    assert scene["backprojection mesh"]["triangles"] > 0 and scene["ground truth"]["triangles"] > 0
+
+    # the metrics table is report.json's
+    report = httpx.get(f"{base}/reconstructions/{job_id}/artifacts/report.json").json()
+    (m,) = report["methods"]
+    cells = page.eval_on_selector_all("#metrics tr[data-method=backprojection] td",
+                                      "tds => tds.map(td => [td.dataset.metric, td.dataset.value, td.textContent])")
+    values = {**m["metrics"], **{k: m[k] for k in ("threshold", "points", "faces", "seconds")}}
+    assert len(cells) >= 6
+    for name, raw, text in cells:
+        want = values.get(name)
+        if want is None:
+            assert text == "–", (name, text)
+        else:
+            assert float(raw) == pytest.approx(want, rel=1e-12), name
+            assert float(text) == pytest.approx(want, rel=1e-3), (name, text)
+    # the MIPs, the survey plot and the files
+    assert page.eval_on_selector("#mip img", "img => img.complete && img.naturalWidth > 0")
+    summary = dict(page.eval_on_selector_all("#survey-summary tr", "trs => trs.map(tr => [tr.cells[0].textContent, "
+                                                                   "tr.cells[1].textContent])"))
+    assert summary["pings"] == "900" and summary["platform"] == report["survey"]["platform"]
+    names = page.eval_on_selector_all("#artifacts a", "as => as.map(a => a.textContent)")
+    assert sorted(names) == sorted(a["name"] for a in httpx.get(f"{base}/reconstructions/{job_id}").json()["artifacts"])
+    shot(page, "console-result.png", server["tmp"])
+
+    # the iso slider, moved with the keyboard, re-extracts on the server: the point count changes
+    points0 = m["points"]
+    page.select_option("#iso-method", "backprojection")
+    page.focus("#iso")
+    for _ in range(15):
+        page.keyboard.press("ArrowRight")
+    tau = float(page.input_value("#iso"))
+    page.wait_for_function("t => Number(document.querySelector('#iso-status').dataset.tau) === t", arg=tau,
+                           timeout=60_000)
+    points = int(page.get_attribute("#iso-status", "data-points"))
+    direct = httpx.get(f"{base}/reconstructions/{job_id}/extract",
+                       params={"method": "backprojection", "threshold": tau}).json()
+    assert tau > m["threshold"] + 0.1 and points == direct["points"] and points < points0
+    page.wait_for_function("n => window.__shsasViewer.summary()['backprojection points'].points === n", arg=points)
+
+    # report.html opens in a sandboxed frame (no scripts from user data on this origin)
+    page.click("#artifacts a:text-is('report.html')")
+    page.wait_for_selector("#report-frame:not([hidden])")
+    assert page.get_attribute("#report-frame", "sandbox") == ""
+
+    # a phone-sized window: one column, nothing wider than the screen
+    page.set_viewport_size({"width": 390, "height": 844})
+    assert page.evaluate("document.documentElement.scrollWidth") <= 391
+    page.evaluate("window.scrollTo(0, 0)")
+    shot(page, "console-phone.png", server["tmp"])
+
+
+def test_errors_shown_beside_their_fields(ui, server) -> None:
+    page = ui.page
+    # a malformed survey, dropped on the drop zone: the API's message under the file field
+    page.evaluate("""() => {
+        const dt = new DataTransfer();
+        dt.items.add(new File(['this is not a survey\\n'.repeat(50)], 'notes.txt', {type: 'text/plain'}));
+        document.querySelector('#drop').dispatchEvent(new DragEvent('drop', {dataTransfer: dt, bubbles: true}));
+    }""")
+    assert "notes.txt" in page.inner_text("#survey-name")
+    page.click("#submit-btn")
+    page.wait_for_function("() => document.querySelector('#err-survey').textContent.length > 0", timeout=60_000)
+    assert "not a recognised survey" in page.inner_text("#err-survey")
+    # a spec value over its limit: the API's message beside that field, which gets the focus
+    page.set_input_files("#survey-input", str(server["demo"]))
+    fill_spec(page, {"grid": "9999"})
+    page.click("#submit-btn")
+    page.wait_for_function("() => document.querySelector('#err-spec-grid').textContent.length > 0", timeout=60_000)
+    msg = page.inner_text("#err-spec-grid")
+    assert msg.startswith("spec.grid") and "512" in msg
+    assert page.evaluate("document.activeElement.id") == "spec-grid"
+    assert page.inner_text("#err-spec-iters") == "" and page.inner_text("#err-survey") == ""
+    shot(page, "console-error.png", server["tmp"])
+
+
+def test_page_loads_nothing_from_elsewhere(ui, server) -> None:
+    """Every request of a full page load goes to the server (the fixture refuses and logs the rest)."""
+    seen: list[str] = []
+    ui.page.on("request", lambda r: seen.append(r.url))
+    ui.page.reload()
+    ui.page.wait_for_selector("#spec-grid")
+    assert any(u.endswith("/console/app.js") for u in seen) and any("/schemas/reconstruction-spec" in u for u in seen)
+    assert all(u.startswith((server["base"], "data:", "blob:")) for u in seen), seen
+    assert ui.page.evaluate("document.querySelectorAll('script[src^=http], link[href^=http]').length") == 0
+
+
+def test_keyboard_reaches_the_controls(ui) -> None:
+    page = ui.page
+    page.keyboard.press("Tab")
+    assert page.evaluate("document.activeElement.textContent") == "Skip to the jobs"
+    reached = set()
+    for _ in range(120):
+        page.keyboard.press("Tab")
+        reached.add(page.evaluate("document.activeElement.id"))
+        if "submit-btn" in reached:
+            break
+    assert {"key-input", "survey-input", "spec-methods-backprojection", "spec-grid", "spec-device",
+            "submit-btn"} <= reached, reached
+
+
+def test_key_flow(browser, server) -> None:
+    """Last in the module: once a key exists the server wants it, from the page as from curl."""
+    created = subprocess.run([*SHSAS, "keys", "create", "console-test"], capture_output=True, text=True,
+                             timeout=120, cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO), **server["env"]})
+    assert created.returncode == 0, created.stderr
+    key = created.stdout.strip().splitlines()[-1]
+    ui = Page(browser, server["base"])
+    try:
+        page = ui.page
+        page.goto(server["base"] + "/")
+        page.wait_for_selector("#banner:not([hidden])")
+        assert "API key required" in page.inner_text("#banner")
+        page.fill("#key-input", "shsas_wrong_key")
+        page.press("#key-input", "Enter")
+        page.wait_for_function("() => document.querySelector('#banner').textContent.includes('invalid or revoked')")
+        assert "paste an API key" in page.inner_text("#banner")
+        page.fill("#key-input", key)
+        page.click("#key-form button[type=submit]")
+        page.wait_for_selector("#banner", state="hidden")
+        page.wait_for_selector("#jobs-empty:not([hidden])")  # a new key owns no jobs yet
+        assert key not in page.url and page.input_value("#key-input") == ""
+        assert page.evaluate("sessionStorage.getItem('shsas.apiKey')") == key
+        assert page.evaluate("localStorage.length") == 0
+        # the key lives for the tab's session only
+        other = ui.ctx.new_page()
+        other.goto(server["base"] + "/")
+        other.wait_for_selector("#banner:not([hidden])")
+        assert "API key required" in other.inner_text("#banner")
+        other.close()
+    finally:
+        ui.close()

@@ -1,0 +1,61 @@
+"""The cost cap and the per-key quota (issue 13, item 11): which specs pass the default limits,
+and what a refusal says. The HTTP answers (422, 429) are in test_operations.py."""
+
+from __future__ import annotations
+
+import pytest
+
+from service.quotas import check_active_jobs, check_spec_cost, max_grid, train_samples
+from service.uploads import UploadError
+from shsas_core.spec import PRESETS, ReconstructionSpec
+from shsas_core.survey import SceneBox
+from worker.settings import Settings
+
+from .test_celery import LONG_SPEC, RESUMABLE_SPEC
+from .test_embedded import QUICK_SPEC
+from .test_redis_loss import BLOCKER_SPEC
+
+#: The issue's example of a spec that was accepted: hours of GPU time per job.
+HUGE = {"grid": 512, "num_rays": 65536, "num_bins": 4096, "iters": 200_000}
+
+
+@pytest.mark.parametrize("spec", [
+    {},  # the project's default spec, which `shsas demo` runs too
+    PRESETS["paper"], QUICK_SPEC, LONG_SPEC, RESUMABLE_SPEC, BLOCKER_SPEC,
+    {**LONG_SPEC, "iters": 200_000},  # benchmarks/bench_service.py
+    {"grid": 512, "methods": ["backprojection"]},  # the largest grid the spec allows
+], ids=["default", "paper", "quick", "long", "resumable", "blocker", "bench", "grid512"])
+def test_default_limits_accept_the_projects_specs(spec: dict) -> None:
+    settings = Settings()
+    check_spec_cost(ReconstructionSpec.model_validate(spec), settings, SceneBox(min=(-1, -1, 0), max=(1, 1, 1)))
+
+
+def test_cost_cap_names_the_limit() -> None:
+    with pytest.raises(UploadError) as err:
+        check_spec_cost(ReconstructionSpec.model_validate(HUGE), Settings())
+    assert err.value.status == 422
+    assert "SHSAS_MAX_TRAIN_SAMPLES" in err.value.message and "5.37e+13" in err.value.message
+    assert train_samples(ReconstructionSpec(methods=["backprojection"], iters=200_000)) == 0
+
+
+def test_grid_cap_checks_the_explicit_and_the_automatic_grid() -> None:
+    settings = Settings(max_grid_voxels=64**3)
+    check_spec_cost(ReconstructionSpec(grid=64), settings)
+    with pytest.raises(UploadError) as err:
+        check_spec_cost(ReconstructionSpec(grid=65), settings)
+    assert err.value.status == 422 and "spec.grid: 65^3" in err.value.message
+    assert "SHSAS_MAX_GRID_VOXELS: grid 64 at most" in err.value.message
+    check_spec_cost(ReconstructionSpec(), settings)  # automatic grid: unknown before the survey is read
+    with pytest.raises(UploadError) as err:  # a 0.25 m box at 2.5 mm voxels: grid 100
+        check_spec_cost(ReconstructionSpec(), settings, SceneBox())
+    assert "automatic" in err.value.message and "100^3" in err.value.message
+    assert [max_grid(n) for n in (512**3, 512**3 - 1, 100)] == [512, 511, 4]
+
+
+def test_quota_is_429_naming_the_limit() -> None:
+    settings = Settings(max_active_jobs_per_key=3)
+    check_active_jobs(2, settings)
+    with pytest.raises(UploadError) as err:
+        check_active_jobs(3, settings)
+    assert err.value.status == 429 and "SHSAS_MAX_ACTIVE_JOBS_PER_KEY" in err.value.message
+    assert "the limit is 3" in err.value.message

@@ -1,0 +1,165 @@
+// The 3-D viewer: each method's mesh (GLB) and point cloud (PLY coloured by its scalar), the
+// ground truth when the survey has one; orbit, zoom and pan (mouse, touch and arrow keys).
+// Files are fetched through the API (with the session key) and parsed here.
+
+import * as THREE from "three";
+import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
+import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
+import { PLYLoader } from "three/examples/jsm/loaders/PLYLoader.js";
+
+const COLOURS = { backprojection: 0x4f9de0, reed: 0xe0a34f, shsas: 0x6fd08c, ground_truth: 0xd0d0d0 };
+
+// viridis at 5 stops: scalars in [τ, 1] read as a familiar dark-to-bright scale
+const VIRIDIS = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]];
+function viridis(t) {
+  const x = Math.min(Math.max(t, 0), 1) * (VIRIDIS.length - 1);
+  const i = Math.min(Math.floor(x), VIRIDIS.length - 2);
+  const f = x - i;
+  return VIRIDIS[i].map((a, k) => a + (VIRIDIS[i + 1][k] - a) * f);
+}
+
+export class Viewer {
+  constructor(canvas) {
+    this.canvas = canvas;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(0x10151c);
+    this.camera = new THREE.PerspectiveCamera(45, 1, 0.001, 1000);
+    this.camera.up.set(0, 0, 1); // survey frame: z up
+    this.controls = new OrbitControls(this.camera, canvas);
+    this.controls.listenToKeyEvents(canvas);
+    this.controls.addEventListener("change", () => this.render());
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x303040, 2.2));
+    const sun = new THREE.DirectionalLight(0xffffff, 1.5);
+    sun.position.set(1, -1, 2);
+    this.scene.add(sun);
+    this.layers = new Map(); // name -> Object3D
+    this.origin = null; // survey-frame point placed at the scene origin (float32 precision)
+    new ResizeObserver(() => this.resize()).observe(canvas);
+    this.resize();
+    window.__shsasViewer = this; // for the browser tests: what the scene holds
+  }
+
+  resize() {
+    const w = this.canvas.clientWidth || 300;
+    const h = this.canvas.clientHeight || 300;
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+    this.render();
+  }
+
+  render() {
+    this.renderer.render(this.scene, this.camera);
+  }
+
+  clear() {
+    for (const name of [...this.layers.keys()]) this.remove(name);
+    this.origin = null;
+  }
+
+  remove(name) {
+    const obj = this.layers.get(name);
+    if (!obj) return;
+    this.scene.remove(obj);
+    obj.traverse((o) => {
+      o.geometry?.dispose();
+      o.material?.dispose?.();
+    });
+    this.layers.delete(name);
+  }
+
+  place(offset) {
+    // GLB coordinates + offset = survey frame; everything is shown relative to the first offset
+    if (!this.origin) this.origin = new THREE.Vector3(...(offset || [0, 0, 0]));
+    return new THREE.Vector3(...(offset || [0, 0, 0])).sub(this.origin);
+  }
+
+  async addMesh(name, buffer, offset, colourKey) {
+    const gltf = await new GLTFLoader().parseAsync(buffer, "");
+    const group = new THREE.Group();
+    const colour = COLOURS[colourKey] ?? 0xcccccc;
+    const gt = colourKey === "ground_truth";
+    gltf.scene.traverse((o) => {
+      if (o.isMesh) {
+        o.material = new THREE.MeshStandardMaterial({
+          color: colour, roughness: 0.6, metalness: 0.05, side: THREE.DoubleSide,
+          transparent: gt, opacity: gt ? 0.35 : 1, wireframe: false, depthWrite: !gt,
+        });
+      }
+    });
+    group.add(gltf.scene);
+    group.position.copy(this.place(offset));
+    group.userData = { kind: "mesh", triangles: countTriangles(gltf.scene) };
+    this.set(name, group);
+    return group.userData.triangles;
+  }
+
+  addPoints(name, buffer) {
+    const loader = new PLYLoader();
+    loader.setCustomPropertyNameMapping({ scalar: ["scalar_magnitude"] });
+    const geom = loader.parse(buffer);
+    for (const [attr, a] of Object.entries(geom.attributes)) {
+      // PLY doubles arrive as Float64 attributes, which WebGL cannot draw
+      if (a.array instanceof Float64Array) geom.setAttribute(attr, new THREE.Float32BufferAttribute(a.array, a.itemSize));
+    }
+    const n = geom.getAttribute("position")?.count ?? 0;
+    const scalar = geom.getAttribute("scalar");
+    const colours = new Float32Array(n * 3);
+    for (let i = 0; i < n; i++) colours.set(viridis(scalar ? scalar.getX(i) : 1), i * 3);
+    geom.setAttribute("color", new THREE.BufferAttribute(colours, 3));
+    const shift = this.place([0, 0, 0]); // PLY points are in the survey frame already
+    geom.translate(shift.x, shift.y, shift.z);
+    const pts = new THREE.Points(geom, new THREE.PointsMaterial({ size: 2, sizeAttenuation: false, vertexColors: true }));
+    pts.userData = { kind: "points", points: n };
+    this.set(name, pts);
+    return n;
+  }
+
+  set(name, obj) {
+    const visible = this.layers.get(name)?.visible ?? true;
+    this.remove(name);
+    obj.visible = visible;
+    obj.name = name;
+    this.layers.set(name, obj);
+    this.scene.add(obj);
+    this.render();
+  }
+
+  show(name, on) {
+    const obj = this.layers.get(name);
+    if (obj) obj.visible = on;
+    this.render();
+  }
+
+  frame() {
+    const box = new THREE.Box3();
+    for (const obj of this.layers.values()) if (obj.visible) box.expandByObject(obj);
+    if (box.isEmpty()) return;
+    const centre = box.getCenter(new THREE.Vector3());
+    const size = box.getSize(new THREE.Vector3()).length() || 1;
+    this.controls.target.copy(centre);
+    this.camera.position.copy(centre).add(new THREE.Vector3(0.9, -1.1, 0.7).multiplyScalar(size));
+    this.camera.near = size / 1000;
+    this.camera.far = size * 100;
+    this.camera.updateProjectionMatrix();
+    this.controls.update();
+    this.render();
+  }
+
+  /** What the scene holds, for tests and the status line. */
+  summary() {
+    const out = {};
+    for (const [name, obj] of this.layers) out[name] = { ...obj.userData, visible: obj.visible };
+    return out;
+  }
+}
+
+function countTriangles(root) {
+  let n = 0;
+  root.traverse((o) => {
+    if (o.isMesh) n += (o.geometry.index ? o.geometry.index.count : o.geometry.getAttribute("position").count) / 3;
+  });
+  return n;
+}
