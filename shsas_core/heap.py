@@ -11,6 +11,10 @@ defaults and calls ``malloc_trim(0)`` so the process gives the memory back. Meas
 ``benchmarks/bench_train.py`` (docs/results.md). This is what PyTorch's CUDA caching allocator
 does for GPU memory; the CPU allocator has no cache of its own.
 
+After the block, free chunks that sit below live allocations stay inside the heap's address
+range (their pages are given back, the range is not), so a later large request may be carved
+from them instead of being mmapped, and stays resident after it is freed until trimmed again.
+
 Process-wide while active (other threads' allocations are served the same way); nested and
 concurrent blocks are reference-counted. A no-op where there is no glibc ``mallopt`` (macOS,
 musl, Windows).
