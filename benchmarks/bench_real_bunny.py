@@ -56,16 +56,17 @@ def pictures(vol: np.ndarray, best, gt_v: np.ndarray, gt_f: np.ndarray, out: Pat
     a = out / f"real_bunny_{tag}_mips.png"
     fig.savefig(a, dpi=70)
     plt.close(fig)
-    fig, ax = plt.subplots(1, 2, figsize=(7.5, 3.6))
-    k = vol.shape[2] // 2
-    # the authors' png shows rows top-down; draw ours the same way (y down the rows) to compare
-    ax[0].imshow(np.flipud(vol[:, :, k].T), extent=ext, cmap="viridis")
-    ax[0].set(title=f"shsas: |image| at z = 0.1 m ({tag})", xlabel="x, m", ylabel="y, m (down)")
+    fig, ax = plt.subplots(1, 3, figsize=(11, 3.6))
+    # horizontal slices through the scene centre (z = 0.1 m, the authors' "center_xy") and lower
+    for a_, z in zip(ax[:2], (0.1, 0.05), strict=True):
+        k = min(int(z / 0.2 * vol.shape[2]), vol.shape[2] - 1)
+        a_.imshow(vol[:, :, k].T, origin="lower", extent=ext, cmap="viridis")
+        a_.set(title=f"shsas {tag}: |image| at z = {z:g} m", xlabel="x, m", ylabel="y, m")
     ref = FOLDER / "reference_bp_center_xy.png"
     if ref.is_file():
-        ax[1].imshow(plt.imread(ref))
-        ax[1].set(title="authors' reference_bp_center_xy.png")
-        ax[1].axis("off")
+        ax[2].imshow(plt.imread(ref))
+        ax[2].set(title="authors' reference_bp_center_xy.png")
+        ax[2].axis("off")
     fig.tight_layout()
     b = out / f"real_bunny_{tag}_slice.png"
     fig.savefig(b, dpi=70)
@@ -94,6 +95,7 @@ def main() -> None:
     ap.add_argument("--yaw-starts", type=int, default=12)
     ap.add_argument("--pictures", default=None, help="folder for the PNGs")
     ap.add_argument("--tag", default="bp")
+    ap.add_argument("--save-volume", default=None, help="write |image| as .npy here")
     args = ap.parse_args()
     import torch
     import trimesh
@@ -110,6 +112,8 @@ def main() -> None:
     vol = backproject_survey(sub, grid, sub.samples, config=BackprojectionConfig(backend=args.backend))
     t_bp = time.perf_counter() - t
     mag = Volume(grid, np.abs(vol.values).astype(np.float32), name="backprojection")
+    if args.save_volume:
+        np.save(args.save_volume, mag.values)
     mesh = trimesh.load(MESH, force="mesh")
     t = time.perf_counter()
     scores, best = aligned_scores(mag, np.asarray(mesh.vertices), np.asarray(mesh.faces), yaw_starts=args.yaw_starts)
