@@ -8,7 +8,8 @@ alignment to the reference mesh, aligned Chamfer-L2 (docs/results.md, "Real AirS
 deconvolved-ping folder is imported with the default geometry. The pings used are every
 ``angle-step``-th turntable step of every ``level-step``-th level. Prints one JSON line: the
 settings, seconds per stage, the extraction threshold, Chamfer-L2 before and after alignment.
-``--pictures`` writes the MIPs, the centre slice beside the authors' reference slice, and the
+``--volumes DIR`` instead scores every ``*_volume.npy`` of a ``shsas reconstruct`` output
+folder (Reed, SH-SAS, backprojection) the same way. ``--pictures`` writes the MIPs, the centre slice beside the authors' reference slice, and the
 aligned points over the mesh sample. Never asserts: figures are reported, not tested.
 """
 
@@ -85,6 +86,24 @@ def pictures(vol: np.ndarray, best, gt_v: np.ndarray, gt_f: np.ndarray, out: Pat
     return [str(a), str(b), str(c)]
 
 
+def score_folder(folder: Path, yaw_starts: int) -> None:
+    """Aligned scores of every method's volume in a `shsas reconstruct` output folder."""
+    import trimesh
+
+    from shsas_core.survey import SceneBox
+
+    mesh = trimesh.load(MESH, force="mesh")
+    for f in sorted(folder.glob("*_volume.npy")):
+        info = json.loads(f.with_suffix(".json").read_text())
+        grid = Grid.over(SceneBox(min=tuple(info["box_min"]), max=tuple(info["box_max"])), max(info["shape"]))
+        if list(grid.shape) != list(info["shape"]):
+            raise SystemExit(f"{f.name}: grid {info['shape']} is not a cubic-voxel grid over its box")
+        vol = Volume(grid, np.abs(np.load(f)).astype(np.float32), name=f.stem)
+        scores, best = aligned_scores(vol, np.asarray(mesh.vertices), np.asarray(mesh.faces), yaw_starts=yaw_starts)
+        print(json.dumps({"volume": f.name, "grid": info["shape"], "start_yaw_deg": best.start_yaw_deg,
+                          **{k: round(v, 7) for k, v in scores.items()}}), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--survey", default=str(FOLDER))
@@ -96,9 +115,15 @@ def main() -> None:
     ap.add_argument("--pictures", default=None, help="folder for the PNGs")
     ap.add_argument("--tag", default="bp")
     ap.add_argument("--save-volume", default=None, help="write |image| as .npy here")
+    ap.add_argument("--volumes", default=None,
+                    help="score the *_volume.npy of a `shsas reconstruct` output folder instead (one line each)")
     args = ap.parse_args()
     import torch
     import trimesh
+
+    if args.volumes:
+        score_folder(Path(args.volumes), args.yaw_starts)
+        return
 
     t = time.perf_counter()
     s = load_survey(args.survey)
