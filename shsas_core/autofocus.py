@@ -9,7 +9,10 @@ highest-contrast: :mod:`shsas_core.sharpness`) fast low-resolution backprojectio
 * ``range_offset``: a one-way range offset ``dr``: echoes recorded ``2 dr / c`` late (an
   unremoved delay); corrected by moving ``t0`` earlier by that time;
 * ``level_z``: a height offset per height level (:func:`shsas_core.planar.height_levels`), the
-  lowest level held at zero: a common height shift of every sensor only moves the image;
+  lowest level held at zero: a common height shift of every sensor only moves the image. With
+  ``level_z_knots = K`` the offsets are a piecewise-linear function of the level's height with K
+  evenly spaced knots (K − 1 unknowns; K = 2 is a wrong height step): a scan of 150 levels is
+  then searched with a handful of parameters instead of 149;
 * ``radius``: the TX/RX circle radius about the z axis (circular scans): both sensors move
   radially by ``dρ``.
 
@@ -59,6 +62,8 @@ class AutofocusConfig(BaseModel):
     range_offset_step_m: float = Field(0.001, gt=0, description="coarse grid step of dr, m")
     level_z_span_m: float = Field(0.02, gt=0, le=0.5, description="± search range of each level's dz, m")
     level_z_step_m: float = Field(0.002, gt=0, description="coarse grid step of dz, m")
+    level_z_knots: int | None = Field(None, ge=2, le=64, description="level_z as a piecewise-linear "
+                                      "function of height with this many knots (None: every level free)")
     radius_span_m: float = Field(0.02, gt=0, le=0.5, description="± search range of dρ, m")
     radius_step_m: float = Field(0.001, gt=0, description="coarse grid step of dρ, m")
     pixels: int = Field(48, ge=8, le=256, description="search image: pixels along the box's longest axis "
@@ -179,9 +184,13 @@ class _Problem:
         self.points = points
         self.points_coarse = points
         names: list[tuple[str, int]] = []
+        # knots of the piecewise-linear level_z (heights of the levels' TX), when asked for
+        self.knots = (np.linspace(levels.heights.min(), levels.heights.max(), cfg.level_z_knots)
+                      if cfg.level_z_knots else None)
         for p in cfg.parameters:
             if p == "level_z":
-                names += [("level_z", k) for k in range(1, levels.count)]
+                count = levels.count if self.knots is None else len(self.knots)
+                names += [("level_z", k) for k in range(1, count)]
             else:
                 names.append((p, 0))
         self.names = names
@@ -202,7 +211,8 @@ class _Problem:
     def correction(self, x: np.ndarray) -> Correction:
         v = x * self.steps
         eps = dr = drho = 0.0
-        dz = [0.0] * self.levels.count if "level_z" in self.cfg.parameters else []
+        count = self.levels.count if self.knots is None else len(self.knots)
+        dz = [0.0] * count if "level_z" in self.cfg.parameters else []
         for (p, k), val in zip(self.names, v, strict=True):
             if p == "sound_speed":
                 eps = float(val)
@@ -212,6 +222,9 @@ class _Problem:
                 drho = float(val)
             else:
                 dz[k] = float(val)
+        if dz and self.knots is not None:
+            # the lowest knot is held at 0 like the lowest level; heights between knots interpolate
+            dz = np.interp(self.levels.heights, self.knots, dz).tolist()
         return Correction(sound_speed=self.c0 * (1 + eps), range_offset_m=dr, level_z_m=tuple(dz),
                           radius_offset_m=drho)
 

@@ -202,11 +202,13 @@ def deconvolve(
     Returns:
         (N, T) complex64 on the survey's own time axis (``survey.t0``, ``meta.fs``), analytic
         passband for real/analytic surveys, baseband for baseband surveys.
+        A ``meta.pulse_deconvolved`` survey gets its analytic signal whatever ``config`` says.
     """
     config = config or DeconvConfig()
     s = analytic_samples(survey)
     check_stop(should_stop)
-    if config.method == "none":
+    # samples deconvolved before import: a second deconvolution would divide the pulse out twice
+    if config.method == "none" or survey.meta.pulse_deconvolved:
         progress(1.0, "deconvolution", {})
         return s
     if config.method == "wiener":
@@ -248,11 +250,12 @@ def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width:
         half_width: ``h``; the kernel has ``2h + 1`` taps (lags -h..h samples).
     Returns:
         (2h + 1,) complex128 with unit value at lag 0 (index h), or None for ``method="none"``
-        (the raw echo is a whole chirp, not a compact kernel).
+        (the raw echo is a whole chirp, not a compact kernel) and for ``meta.pulse_deconvolved``
+        surveys.
     """
     cfg = config or DeconvConfig()
-    if cfg.method == "none":
-        return None
+    if cfg.method == "none" or survey.meta.pulse_deconvolved:
+        return None  # pre-deconvolved data: their kernel is unknown, the ideal impulse is assumed
     rep = replica_in_frame(survey)
     # a record as long as the survey's, so the FFT filters are sampled as they are on the data
     n = max(survey.num_samples, rep.size + 4 * half_width + 1)

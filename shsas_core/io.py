@@ -294,6 +294,8 @@ def summarize(survey: Survey) -> dict[str, Any]:
         "pings": survey.num_pings,
         "samples_per_ping": survey.num_samples,
         "signal_kind": m.signal_kind,
+        # pre-deconvolved samples: no stage deconvolves them again (docs/formats.md, meta table)
+        "pulse_deconvolved": m.pulse_deconvolved,
         "fs_hz": m.fs,
         "sound_speed_m_s": m.sound_speed,
         "band_hz": [m.pulse.f_start, m.pulse.f_stop],

@@ -95,6 +95,9 @@ class SurveyMeta(_Strict):
     tx_beamwidth_deg: float | None = Field(None, gt=0, le=360, description="full TX cone angle, degrees")
     rx_beamwidth_deg: float | None = Field(None, gt=0, le=360, description="full RX cone angle, degrees")
     platform: str = Field("unknown", max_length=64)
+    pulse_deconvolved: bool = Field(
+        False, description="the samples are already pulse-deconvolved (s_PD, e.g. an external "
+        "deconvolution's output): processing takes their analytic signal and never deconvolves again")
     scene_box: SceneBox = SceneBox()
     attrs: dict[str, str | float | int | bool] = Field(default_factory=dict, description="provenance")
 

@@ -28,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "under the input geometry)")
     p.add_argument("--pixels", type=int, default=48, help="search image pixels along the longest axis")
     p.add_argument("--max-pings", type=int, default=360, help="evenly spaced pings used by the search")
+    p.add_argument("--level-knots", type=int, default=None,
+                   help="level_z as a piecewise-linear function of height with this many knots (2: a "
+                   "wrong height step); default: every level's offset free")
     p.add_argument("--background", default=None,
                    help="AirSAS CSV input: empty-scene scan folder/.zip to subtract")
     p.set_defaults(func=run)
@@ -48,10 +51,10 @@ def run(args: argparse.Namespace) -> int:
                          f"comma-separated list of {', '.join(PARAMETERS)})")
     try:
         cfg = AutofocusConfig(parameters=params, measure=args.measure, plane_z=args.plane_z,
-                              pixels=args.pixels, max_pings=args.max_pings)
+                              pixels=args.pixels, max_pings=args.max_pings, level_z_knots=args.level_knots)
     except pydantic.ValidationError as exc:
         err = exc.errors()[0]
-        name = {"pixels": "--pixels", "max_pings": "--max-pings"}.get(str(err["loc"][0]), str(err["loc"][0]))
+        name = {"pixels": "--pixels", "max_pings": "--max-pings", "level_z_knots": "--level-knots"}.get(str(err["loc"][0]), str(err["loc"][0]))
         raise ShsasError(f"{name}: {err['msg']} (fix: "
                          f"{pydantic_fix(err, list(AutofocusConfig.model_fields), 'shsas autofocus --help')})"
                          ) from None

@@ -7,13 +7,13 @@ import argparse
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "convert", help="import a survey (AirSAS CSV folder/.zip/.pkl, SVSS HDF5) into canonical HDF5",
+        "convert", help="import a survey (AirSAS CSV folder/.zip/.pkl or deconvolved pings, SVSS HDF5) into canonical HDF5",
         description="Convert a survey into the canonical shsas HDF5 file (docs/formats.md). "
         "The input format is detected from its contents.")
     p.add_argument("input", help="input survey: file or folder")
     p.add_argument("output", help="output .h5 path")
     p.add_argument("--format", default="auto",
-                   help="force the input format (auto, shsas, airsas-csv, airsas-pickle, svss)")
+                   help="force the input format (auto, shsas, airsas-csv, airsas-pickle, svss, airsas-deconvolved)")
     p.add_argument("--compression", choices=["none", "gzip", "lzf"], default="none",
                    help="compress sample arrays (default none: fastest to read)")
     p.add_argument("--background", default=None,
@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="AirSAS: index of the interleaved waveform to keep (default: the first ping's)")
     p.add_argument("--image-number", type=int, default=None,
                    help="SVSS: image number N when the track folder holds several")
+    p.add_argument("--geometry", default=None,
+                   help="AirSAS deconvolved pings (weights_trans_*.npy): JSON file of the geometry fields "
+                   "(docs/formats.md, 'AirSAS deconvolved pings'; default: the 2022 SysParams, 5 mm levels)")
     p.set_defaults(func=run)
 
 
@@ -37,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
         options["waveform"] = args.waveform
     if args.image_number is not None:
         options["image_number"] = args.image_number
+    if args.geometry is not None:
+        options["geometry"] = args.geometry
     import sys
 
     from ..progress import TqdmProgress

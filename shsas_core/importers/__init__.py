@@ -2,8 +2,8 @@
 
 ``load_survey(path, fmt="auto")`` detects the format from the contents (not the extension):
 canonical HDF5 (``format`` attribute), SVSS HDF5 (``DataReal``/``Position`` datasets, or a
-folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder or .zip, or an
-AirSAS processed pickle. Layouts and conversions: docs/formats.md.
+folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder or .zip, an
+AirSAS processed pickle, or a folder of AirSAS pulse-deconvolved pings (``weights_trans_*.npy``). Layouts and conversions: docs/formats.md.
 """
 
 from __future__ import annotations
@@ -17,22 +17,26 @@ from ..errors import ShsasError, SurveyValidationError, UnsupportedFormatError
 from ..progress import ProgressFn
 from ..survey import Survey
 
-FORMATS = ("shsas", "airsas-csv", "airsas-pickle", "svss")
+FORMATS = ("shsas", "airsas-csv", "airsas-pickle", "svss", "airsas-deconvolved")
 
 _AIRSAS_NAMES = {"coordinates.csv", "sysparams.csv", "waveformparams.csv", "waveforms.csv"}
 _SVSS_NAME = re.compile(r"^(unpack float|motion solution) - LF - down - \d+\.hdf5$")
+_DECONVOLVED_NAME = re.compile(r"^weights_trans_\d+_\d+\.npy$")
 
 
 def _detect_dir(p: Path) -> str:
     names = [q.name for q in p.iterdir()]
     if any(_SVSS_NAME.match(n) for n in names):
         return "svss"
+    if any(_DECONVOLVED_NAME.match(n) for n in names):
+        return "airsas-deconvolved"
     if any(n.lower() in _AIRSAS_NAMES or n.startswith("Flight-") for n in names) or any(
             p.rglob("Coordinates.csv")):
         return "airsas-csv"
     raise UnsupportedFormatError(
         f"file: folder '{p.name}' is neither an AirSAS scan (Coordinates.csv, SysParams.csv, "
-        "Flight-*.csv ...) nor an SVSS track ('unpack float - LF - down - N.hdf5') "
+        "Flight-*.csv ...), an AirSAS deconvolved-ping folder (weights_trans_*_*.npy) nor an SVSS "
+        "track ('unpack float - LF - down - N.hdf5') "
         "(fix: give the scan or track folder itself; layouts in docs/formats.md)")
 
 
@@ -79,11 +83,12 @@ def load_survey(path: str | os.PathLike, fmt: str = "auto", *, load_samples: boo
         progress: ``progress(fraction, stage, metrics)`` for importers that read many files
             (AirSAS CSV); ignored by the others.
         options: importer keywords, e.g. ``background=``, ``waveform=`` (AirSAS CSV),
-            ``image_number=``, ``temperature_f=`` (SVSS), ``scene_box=`` (all importers).
+            ``image_number=``, ``temperature_f=`` (SVSS), ``geometry=`` (AirSAS deconvolved),
+            ``scene_box=`` (all importers).
     """
     try:
         fmt = detect_format(path) if fmt == "auto" else fmt
-        if progress is not None and fmt == "airsas-csv":
+        if progress is not None and fmt in ("airsas-csv", "airsas-deconvolved"):
             options = {**options, "progress": progress}
         return _load(path, fmt, load_samples, options)
     except ShsasError:
@@ -116,4 +121,8 @@ def _load(path: str | os.PathLike, fmt: str, load_samples: bool, options: dict[s
         from .svss import read_svss
 
         return read_svss(path, load_samples=load_samples, **options)
+    if fmt == "airsas-deconvolved":
+        from .airsas_deconvolved import read_deconvolved_folder
+
+        return read_deconvolved_folder(path, load_samples=load_samples, **options)
     raise UnsupportedFormatError(f"format: unknown format '{fmt}' (fix: use auto or one of {', '.join(FORMATS)})")
