@@ -66,6 +66,10 @@ _FIT_PINGS = 3
 #: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
 #: rendering a whole ping costs about as much as a few hundred training iterations on a CPU.
 _MAX_NOVEL_PINGS = 32
+#: The pings rendered for the signal figure and the novel-view errors use the job's ``num_rays``
+#: up to this many rays per ping: whole pings cost far more than a training batch, and 512 rays
+#: already give errors stable to a few per cent.
+MAX_SCORING_RAYS = 512
 
 
 def _evenly(idx: np.ndarray, k: int) -> np.ndarray:
@@ -474,14 +478,14 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     compatible checkpoint there is resumed, and then holds the started field already)."""
     import torch
 
-    from .fields import FieldConfig, SHField
+    from .fields import FieldConfig, SHField, encoding_preset
     from .fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
     from .train import CHECKPOINT_NAME, fit
     from .warmstart import WarmStartConfig, distill
 
     torch.manual_seed(spec.seed)
     fcfg = FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box,
-                       encoding=encoding_config(spec.encoding))
+                       encoding=encoding_preset(spec.encoding))
     field = SHField(fcfg).to(device)
     fit_progress = progress
     occupancy = None
@@ -506,38 +510,24 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     return (field if occupancy is None else MaskedField(field, occupancy)), result
 
 
-#: The ``small`` encoding: the setting the trainer's sphere convergence test uses on a CPU.
-SMALL_ENCODING = {"n_levels": 8, "log2_table_size": 13, "base_resolution": 8, "finest_resolution": 128}
-
-
-def encoding_config(name: str) -> Any:
-    """Hash-encoding config for ``spec.encoding`` (``cpu``, ``small`` or ``paper_gpu``)."""
-    from .fields import HashEncodingConfig, encoding_preset
-
-    if name == "small":
-        return HashEncodingConfig(**SMALL_ENCODING)
-    return encoding_preset(name)
-
-
 def train_config(spec: ReconstructionSpec) -> Any:
-    """The trainer's config from the job spec (fields the trainer knows are passed through)."""
-    from .train import TrainConfig
+    """The trainer's config from the job spec. Every key is a TrainConfig field: a name that is
+    not (a renamed field, say) fails here instead of being dropped."""
+    from .train import LossWeights, TrainConfig
 
-    want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays, "lr": spec.lr,
-            "lr_final": spec.lr_final,
-            "target": spec.target, "pings_per_batch": spec.pings_per_batch, "device": spec.device,
-            "weights": {"sparsity": spec.sparsity},
-            # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
-            "checkpoint_every": max(10, min(500, spec.iters // 10))}
-    fields = TrainConfig.model_fields
-    return TrainConfig(**{k: v for k, v in want.items() if k in fields})
+    return TrainConfig(
+        iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
+        lr_final=spec.lr_final, target=spec.target, pings_per_batch=spec.pings_per_batch,
+        device=spec.device, weights=LossWeights(sparsity=spec.sparsity),
+        # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
+        checkpoint_every=max(10, min(500, spec.iters // 10)))
 
 
 def _render(field: Any, survey: Survey, pings: np.ndarray, spec: ReconstructionSpec, amplitude: float,
             device: Any) -> np.ndarray:
     from .render import RenderConfig, render_transients
 
-    cfg = RenderConfig(num_rays=min(spec.num_rays, 512))
+    cfg = RenderConfig(num_rays=min(spec.num_rays, MAX_SCORING_RAYS))
     return render_transients(field, survey, pings, cfg, amplitude=amplitude, device=device, seed=spec.seed)
 
 

@@ -7,6 +7,7 @@ Entry points: :class:`HashEncoding` / :class:`HashEncodingConfig` (presets ``CPU
 from .encoding import (
     CPU_ENCODING,
     PAPER_GPU_ENCODING,
+    SMALL_ENCODING,
     HashEncoding,
     HashEncodingConfig,
     encode_fused,
@@ -19,6 +20,7 @@ from .sh import num_coefficients, sh_basis, sh_index
 __all__ = [
     "CPU_ENCODING",
     "PAPER_GPU_ENCODING",
+    "SMALL_ENCODING",
     "FieldConfig",
     "HashEncoding",
     "HashEncodingConfig",

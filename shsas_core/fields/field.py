@@ -49,6 +49,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..errors import ShsasError
+from ..options import SH_DEGREE, SHDegree
 from ..survey import SceneBox
 from .encoding import CPU_ENCODING, HashEncoding, HashEncodingConfig
 from .sh import num_coefficients, sh_basis
@@ -61,7 +62,7 @@ class FieldConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    sh_degree: int = Field(3, ge=0, le=3, description="SH degree L; 0 = isotropic (Reed et al.)")
+    sh_degree: SHDegree = SH_DEGREE
     encoding: HashEncodingConfig = CPU_ENCODING
     hidden: int = Field(32, ge=1, le=1024, description="units per hidden layer")
     layers: int = Field(2, ge=1, le=8, description="hidden layers (ReLU)")

@@ -31,6 +31,7 @@ from torch import Tensor
 
 from ..errors import ShsasError
 from ..heap import heap_cache
+from ..options import NUM_BINS, NUM_RAYS, UNIFORM_FRACTION, NumBins, NumRays, UniformFraction
 from .geometry import area_jacobian, intersect_focal, intersect_quadric, points_on_rays
 from .sampling import beam_axes, bin_radii, cone_directions, cone_half_angles, scene_range_window
 from .transmittance import transmittance, transmittance_cumprod
@@ -41,9 +42,10 @@ class RenderConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    num_bins: int = Field(64, ge=1, le=65536, description="range bins per ping per iteration")
-    num_rays: int = Field(1024, ge=1, le=1_000_000, description="TX rays per ping")
-    uniform_fraction: float = Field(0.1, ge=0, le=1, description="uniform share of the bin sampling pdf")
+    # bounds and defaults shared with TrainConfig and the job spec (shsas_core.options)
+    num_bins: NumBins = NUM_BINS
+    num_rays: NumRays = NUM_RAYS
+    uniform_fraction: UniformFraction = UNIFORM_FRACTION
     beamwidth_deg: float | None = Field(None, gt=0, le=360,
                                         description="full TX cone angle; None: meta.tx_beamwidth_deg, "
                                         "else a cone covering the scene box")
