@@ -321,7 +321,7 @@ def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Pat
     s_pd = np.asarray(deconvolve(survey, deconv_config(spec), device=device, progress=progress,
                                  should_stop=should_stop),
                       dtype=np.complex64)
-    from .export import atomic_path
+    from .atomic import atomic_path
 
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.save(fh, s_pd)
@@ -343,8 +343,8 @@ class _ImageCache:
             if arr.shape == self._grid.shape:
                 self._volume = Volume(self._grid, arr, name="backprojection")
         if self._volume is None:
+            from .atomic import atomic_path
             from .backprojection import backproject_survey
-            from .export import atomic_path
 
             vol = backproject_survey(self._train, self._grid, self._train.extras["deconvolved"],
                                      device=self._device, progress=progress, should_stop=self._should_stop)
@@ -542,7 +542,7 @@ def _loss_curve(result: Any, max_points: int = 400) -> list[tuple[int, float]]:
 
 
 def _save_fit(ckpt: Path, fit: SignalFit) -> None:
-    from .export import atomic_path
+    from .atomic import atomic_path
 
     with atomic_path(ckpt / "signal_fit.npz") as tmp, open(tmp, "wb") as fh:
         np.savez(fh, times=fit.times, measured=fit.measured, predicted=fit.predicted,

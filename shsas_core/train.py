@@ -42,7 +42,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import random
 import time
 from collections.abc import Sequence
@@ -53,6 +52,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from .atomic import atomic_path
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
 from .fields.occupancy import MaskedField, OccupancyGrid
@@ -428,9 +428,8 @@ def _iteration_loss(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainC
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:

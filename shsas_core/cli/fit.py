@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..errors import ShsasError
 from ..fields.encoding import PRESETS as ENCODINGS
 from ..options import DEVICE, ITERS, LR, NUM_BINS, NUM_RAYS, PINGS_PER_BATCH, SEED, SH_DEGREE
@@ -112,9 +113,8 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     meta = {"method": args.method, "sh_degree": degree, "signals": source, "survey": str(args.survey),
             "field_config": fcfg.model_dump(mode="json"), "train_config": tcfg.model_dump(mode="json")}
-    tmp = out / "field.pt.tmp"
-    torch.save({"state_dict": field.state_dict(), "amplitude": res.amplitude, **meta}, tmp)
-    tmp.replace(out / "field.pt")
+    with atomic_path(out / "field.pt") as tmp:
+        torch.save({"state_dict": field.state_dict(), "amplitude": res.amplitude, **meta}, tmp)
     (out / "loss_history.json").write_text(json.dumps({**res.to_json(), **meta}, indent=1))
     tail = res.data_loss_history[-min(50, len(res.data_loss_history)):]
     print(f"fit {args.method} (L={degree}) on {survey.num_pings} pings, signals: {source}: "
