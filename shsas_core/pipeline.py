@@ -84,9 +84,9 @@ class PipelineResult(BaseModel):
 
     out_dir: str
     artifacts: list[str] = Field(description="file names in out_dir, sorted")
-    metrics: dict[str, dict[str, float]] = Field(
+    metrics: dict[str, dict[str, float | None]] = Field(
         description="method -> metric -> value: pc_*/mesh_* geometry metrics when the survey has ground "
-        "truth (NaN = undefined), plus threshold, points, faces, seconds")
+        "truth (None = undefined), plus threshold, points, faces, seconds")
     report_json: str
     report_html: str
     timings: dict[str, float] = Field(description="seconds per stage")

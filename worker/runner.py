@@ -194,7 +194,9 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         except MemoryError:
             return _fail(store, job, owner, "the job ran out of memory (try a smaller grid or fewer rays)")
         artifacts = _checked_artifacts(out_dir, list(result.artifacts))
-        metrics = {m: {k: float(v) for k, v in d.items() if isinstance(v, int | float)}
+        # None (an undefined metric) is kept as it is: JSON null in the job table and the API
+        metrics = {m: {k: (None if v is None else float(v)) for k, v in d.items()
+                       if v is None or isinstance(v, int | float)}
                    for m, d in result.metrics.items()}
         # a result that looks failed still succeeds (the job ran), but says so in its status
         warnings = [{"method": m, **w.model_dump(mode="json")} for m, ws in result.warnings.items() for w in ws]
