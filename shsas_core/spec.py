@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from .methods import REGISTRY
 from .options import (
     DEVICE,
     ITERS,
@@ -39,8 +40,10 @@ from .options import (
 from .survey import SceneBox
 from .volume import auto_grid_count
 
+#: The names of shsas_core.methods.REGISTRY (a literal, so the API's schema lists them; a test
+#: checks the two agree).
 Method = Literal["backprojection", "reed", "shsas"]
-METHODS: tuple[str, ...] = ("backprojection", "reed", "shsas")
+METHODS: tuple[str, ...] = tuple(REGISTRY)
 
 
 class ReconstructionSpec(BaseModel):
@@ -48,7 +51,7 @@ class ReconstructionSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    methods: list[Method] = Field(default_factory=lambda: ["backprojection", "reed", "shsas"],
+    methods: list[Method] = Field(default_factory=lambda: list(METHODS),
                                   min_length=1, max_length=3, description="methods to run, in order: "
                                   "backprojection, reed (isotropic neural field, SH degree 0), shsas "
                                   "(SH degree sh_degree)")

@@ -32,6 +32,7 @@ from torch import Tensor
 from ..errors import ShsasError
 from ..heap import heap_cache
 from ..options import NUM_BINS, NUM_RAYS, UNIFORM_FRACTION, NumBins, NumRays, UniformFraction
+from ..survey import sample_times
 from .geometry import area_jacobian, intersect_focal, intersect_quadric, points_on_rays
 from .sampling import beam_axes, bin_radii, cone_directions, cone_half_angles, scene_range_window
 from .transmittance import transmittance, transmittance_cumprod
@@ -249,7 +250,7 @@ def passband_factor(survey, ping_indices: Sequence[int] | np.ndarray | None = No
     if survey.meta.signal_kind != "baseband":
         return None
     idx = np.arange(survey.num_pings) if ping_indices is None else np.asarray(ping_indices, dtype=np.int64)
-    t = survey.t0[idx][:, None] + np.arange(survey.num_samples)[None, :] / survey.meta.fs
+    t = sample_times(survey.t0[idx], survey.meta.fs, survey.num_samples)
     return np.exp(2j * np.pi * float(survey.meta.carrier_hz) * t)
 
 

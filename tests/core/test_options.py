@@ -111,3 +111,14 @@ def test_cli_grid_bounds_are_the_spec_bounds(tmp_path):
     for bad in (lo - 1, hi + 1):
         assert main(["backproject", str(tmp_path / "x.h5"), "--grid", str(bad), "--out", str(tmp_path)]) == 2
         assert main(["reconstruct", str(tmp_path / "x.h5"), "--grid", str(bad), "--out", str(tmp_path)]) == 2
+
+
+def test_the_spec_methods_are_the_registry():
+    from shsas_core.methods import NEURAL, REGISTRY
+    from shsas_core.pipeline import sh_degree_of
+    from shsas_core.spec import METHODS, Method
+
+    assert typing.get_args(Method) == tuple(REGISTRY) == METHODS == tuple(ReconstructionSpec().methods)
+    spec = ReconstructionSpec(sh_degree=2)
+    assert [sh_degree_of(m, spec) for m in METHODS] == [None, 0, 2]
+    assert NEURAL == ("reed", "shsas")
