@@ -55,6 +55,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from .atomic import atomic_path
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
+from .fields.base import ScatteringField, device_dtype
 from .fields.occupancy import MaskedField, OccupancyGrid
 from .heap import heap_cache
 from .options import (
@@ -301,25 +302,6 @@ def _batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, devic
     return pings, geom, radii, target
 
 
-def _set_active_degree(field: torch.nn.Module, degree: int | None) -> None:
-    """Progressive SH: zero the coefficients above ``degree`` through the field's output layer."""
-    handle = getattr(field, "_shsas_progressive_hook", None)
-    if handle is not None:
-        handle.remove()
-        field._shsas_progressive_hook = None
-    if degree is None or degree >= field.cfg.sh_degree:
-        return
-    k, keep = field.cfg.num_coefficients, (degree + 1) ** 2
-    mask = torch.ones(2 * k)
-    mask[keep:k] = 0
-    mask[k + keep:] = 0
-
-    def hook(_mod, _inp, out):
-        return out * mask.to(out.device, out.dtype)
-
-    field._shsas_progressive_hook = field.linears[-1].register_forward_hook(hook)
-
-
 def _psf_batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, half: int, device, dtype):
     """One contiguous window of ``psf_window`` target bins per ping (its centre drawn by the bin
     sampler's pdf) and the ``2 half`` bins around it that the kernel reaches: the rendered bins.
@@ -440,9 +422,8 @@ def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[
     c.pop("checkpoint_every")
     c.pop("heap_cache")
     c.pop("device")
-    fcfg = getattr(field, "cfg", None)
     # the C encoding kernel or PyTorch ops: same maths, so a checkpoint moves between machines
-    f = fcfg.model_dump(mode="json", exclude={"native"}) if hasattr(fcfg, "model_dump") else None
+    f = field.config.model_dump(mode="json", exclude={"native"}) if isinstance(field, ScatteringField) else None
     return {"train": c, "field": f, "pings": data.pings.tolist(), "energy": data.energy}
 
 
@@ -492,9 +473,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     t_start = time.perf_counter()
     data = _prepare(survey, signals, ping_indices, cfg.uniform_fraction, cfg.target)
     field.to(device)
-    dtype = next((p.dtype for p in field.parameters()), torch.float32)
-    if cfg.progressive_sh_every is not None and not hasattr(field, "linears"):
-        raise ShsasError("fit: progressive_sh_every needs an SHField (output layer 'linears')")
+    dtype = device_dtype(field)[1]
+    if cfg.progressive_sh_every is not None and not isinstance(field, ScatteringField):
+        raise ShsasError("fit: progressive_sh_every needs a ScatteringField (set_active_degree), e.g. SHField")
     amp_mod = _Amplitude().to(device)
     params = list(field.parameters()) + ([amp_mod.log_amplitude] if cfg.learn_amplitude else [])
     opt = torch.optim.Adam(params, lr=cfg.lr)
@@ -556,7 +537,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             for it in range(start, cfg.iters):
                 check_stop(should_stop)
                 if cfg.progressive_sh_every is not None:
-                    _set_active_degree(field, it // cfg.progressive_sh_every)
+                    field.set_active_degree(it // cfg.progressive_sh_every)
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
@@ -582,7 +563,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             raise
         finally:
             if cfg.progressive_sh_every is not None:
-                _set_active_degree(field, None)
+                field.set_active_degree(None)
     elapsed_loop = time.perf_counter() - t_loop
     save()
     return FitResult(loss_history=loss_hist, data_loss_history=data_hist,

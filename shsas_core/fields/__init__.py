@@ -4,6 +4,7 @@ Entry points: :class:`HashEncoding` / :class:`HashEncodingConfig` (presets ``CPU
 ``PAPER_GPU_ENCODING``), :func:`sh_basis`, :class:`SHField` / :class:`FieldConfig`.
 """
 
+from .base import ScatteringField, device_dtype
 from .encoding import (
     CPU_ENCODING,
     PAPER_GPU_ENCODING,
@@ -25,6 +26,8 @@ __all__ = [
     "HashEncoding",
     "HashEncodingConfig",
     "SHField",
+    "ScatteringField",
+    "device_dtype",
     "encode_fused",
     "encode_reference",
     "encoding_preset",

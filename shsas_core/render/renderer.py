@@ -30,6 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor
 
 from ..errors import ShsasError
+from ..fields.base import device_dtype
 from ..heap import heap_cache
 from ..options import NUM_BINS, NUM_RAYS, UNIFORM_FRACTION, NumBins, NumRays, UniformFraction
 from ..survey import sample_times
@@ -184,10 +185,8 @@ def render_transients(field: torch.nn.Module, survey, ping_indices: Sequence[int
         :func:`passband_factor`).
     """
     cfg = cfg or RenderConfig()
-    if device is None:
-        p = next(iter(field.parameters()), None)
-        device = p.device if p is not None else torch.device("cpu")
-    dtype = next((q.dtype for q in field.parameters()), torch.float32)
+    own_device, dtype = device_dtype(field)
+    device = own_device if device is None else device
     idx = np.asarray(ping_indices, dtype=np.int64)
     n_t = survey.num_samples
     if idx.size and (idx.min() < 0 or idx.max() >= survey.num_pings):
