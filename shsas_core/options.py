@@ -49,6 +49,10 @@ TARGET: Target = "coherent"
 TARGET_HELP = ("data term of the neural methods: coherent fits complex s_PD (the paper); envelope fits "
                "|s_PD| (real, >= 0), which converges at CPU budgets (docs/neural.md)")
 
+#: The hash-encoding presets by name (shsas_core.fields.encoding.PRESETS; a test checks they
+#: agree). Here, not read from there, so the CLI can list them without importing torch.
+EncodingName = Literal["cpu", "small", "paper_gpu"]
+
 #: Voxels along the longest scene-box axis of a reconstruction grid.
 GridCount = Annotated[int, Field(ge=8, le=512, description="voxels along the longest scene-box axis")]
 

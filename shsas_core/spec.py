@@ -25,6 +25,7 @@ from .options import (
     TARGET,
     TARGET_HELP,
     DeviceName,
+    EncodingName,
     FinalLearningRate,
     GridCount,
     Iters,
@@ -94,7 +95,7 @@ class ReconstructionSpec(BaseModel):
         "the paper's simulated setting")
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     target: Target = Field(TARGET, description=TARGET_HELP)
-    encoding: Literal["cpu", "small", "paper_gpu"] = Field(
+    encoding: EncodingName = Field(
         "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
         "small (8 levels, 2^13 rows, finest 128: fastest, for short CPU runs), paper_gpu (the paper's)")
 

@@ -5,14 +5,24 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import typing
 from pathlib import Path
 
 import numpy as np
 
 from ..atomic import atomic_path
 from ..errors import ShsasError
-from ..fields.encoding import PRESETS as ENCODINGS
-from ..options import DEVICE, ITERS, LR, NUM_BINS, NUM_RAYS, PINGS_PER_BATCH, SEED, SH_DEGREE
+from ..options import (
+    DEVICE,
+    ITERS,
+    LR,
+    NUM_BINS,
+    NUM_RAYS,
+    PINGS_PER_BATCH,
+    SEED,
+    SH_DEGREE,
+    EncodingName,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
     p.add_argument("--seed", type=int, default=SEED, help="seed of every random draw")
     p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints")
-    p.add_argument("--encoding", choices=sorted(ENCODINGS), default=None,
+    p.add_argument("--encoding", choices=sorted(typing.get_args(EncodingName)), default=None,
                    help="hash-grid preset (default: paper_gpu on CUDA, cpu otherwise)")
     p.add_argument("--beamwidth", type=float, default=None,
                    help="full TX cone angle, degrees (default: survey meta, else cover the scene box)")

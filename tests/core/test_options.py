@@ -122,3 +122,14 @@ def test_the_spec_methods_are_the_registry():
     spec = ReconstructionSpec(sh_degree=2)
     assert [sh_degree_of(m, spec) for m in METHODS] == [None, 0, 2]
     assert NEURAL == ("reed", "shsas")
+
+
+def test_building_the_cli_does_not_import_torch():
+    """`shsas worker` / `serve` parse their options in a process that must not load torch (the
+    Celery parent; tests/service/test_celery.py checks its memory maps)."""
+    import subprocess
+    import sys
+
+    code = "import sys; from shsas_core.cli import build_parser; build_parser(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
