@@ -52,8 +52,8 @@ def main() -> None:
     from shsas_core.deconv import deconvolve
     from shsas_core.extract import field_volume
     from shsas_core.fields import FieldConfig, SHField
+    from shsas_core.fields import encoding_preset as encoding_config
     from shsas_core.metrics import surface_concentration
-    from shsas_core.pipeline import encoding_config
     from shsas_core.progress import TqdmProgress
     from shsas_core.simulate import simulate_shape
     from shsas_core.train import TrainConfig, evaluate_data_loss, fit

@@ -91,9 +91,9 @@ def mean_rows(per_scene: dict[str, dict[str, dict[str, float]]]) -> list[tuple[s
         keys = {k for d in per_scene.values() for k in d.get(method, {})}
         avg = {}
         for k in keys:
-            vals = [d.get(method, {}).get(k, math.nan) for d in per_scene.values()]
+            vals = [d.get(method, {}).get(k) for d in per_scene.values()]
             # undefined for any scene (e.g. an empty point cloud has no Chamfer) -> undefined mean
-            avg[k] = sum(vals) / len(vals) if all(math.isfinite(v) for v in vals) else math.nan
+            avg[k] = sum(vals) / len(vals) if all(v is not None and math.isfinite(v) for v in vals) else None
         rows.append(("mean", LABEL[method], avg))
     return rows
 

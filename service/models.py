@@ -62,7 +62,8 @@ class JobOut(BaseModel):
     error: str | None
     spec: dict[str, Any]
     input: JobInput
-    metrics: dict[str, dict[str, float]] | None = Field(None, description="per-method metrics summary")
+    metrics: dict[str, dict[str, float | None]] | None = Field(
+        None, description="per-method metrics summary (null: undefined, e.g. Chamfer of an empty cloud)")
     warnings: list[ResultWarningOut] = Field(
         default_factory=list, description="signs that a method's result failed although the job succeeded "
         "(collapsed volume, cloud filling the scene box, data loss that did not fall); empty when none")

@@ -7,6 +7,7 @@ and words the refusal, naming the limit and the setting that raises it.
 
 from __future__ import annotations
 
+from shsas_core.methods import NEURAL
 from shsas_core.spec import ReconstructionSpec
 from shsas_core.survey import SceneBox
 from shsas_core.volume import auto_grid_count
@@ -14,13 +15,11 @@ from worker.settings import Settings
 
 from .uploads import UploadError
 
-#: Methods that train a neural field (their cost grows with iterations x rays x bins).
-NEURAL = ("reed", "shsas")
-
 
 def train_samples(spec: ReconstructionSpec) -> int:
     """Samples one neural method renders over its whole fit: iterations x pings per batch x rays
     x bins (0 without a neural method)."""
+    # (a neural method's cost grows with iterations x rays x bins)
     if not any(m in NEURAL for m in spec.methods):
         return 0
     return spec.iters * spec.pings_per_batch * spec.num_rays * spec.num_bins

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from .atomic import atomic_path
 from .errors import ShsasError
 from .progress import ProgressFn, StopFn, check_stop, no_progress
 from .survey import SceneBox, Survey
@@ -432,9 +433,8 @@ def save_volume(volume: Volume, out_dir: str | os.PathLike, extra: dict | None =
     paths = {"volume": out / "volume.npy", "magnitude": out / "magnitude.npy", "grid": out / "grid.json"}
 
     def put(path: Path, arr: np.ndarray) -> None:
-        tmp = path.with_name(path.name + ".tmp.npy")
-        np.save(tmp, arr)
-        os.replace(tmp, path)
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+            np.save(fh, arr)
 
     put(paths["volume"], np.asarray(volume.values))
     put(paths["magnitude"], volume.magnitude())
@@ -443,7 +443,6 @@ def save_volume(volume: Volume, out_dir: str | os.PathLike, extra: dict | None =
             "shape": list(g.shape), "spacing": g.spacing.tolist(),
             "order": "C (x slowest, z fastest); voxel (i,j,k) centre = box_min + (idx + 0.5) * spacing",
             "dtype": str(np.asarray(volume.values).dtype), **(extra or {})}
-    tmp = paths["grid"].with_name("grid.json.tmp")
-    tmp.write_text(json.dumps(info, indent=2))
-    os.replace(tmp, paths["grid"])
+    with atomic_path(paths["grid"]) as tmp:
+        tmp.write_text(json.dumps(info, indent=2))
     return paths

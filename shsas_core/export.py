@@ -12,15 +12,14 @@ GLB is written as stored (z up); glTF viewers assume y up and show the scene lyi
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from .atomic import atomic_path
 from .errors import ShsasError
 from .extract import PointCloud
 from .volume import Grid, Volume
@@ -29,21 +28,6 @@ from .volume import Grid, Volume
 SCALAR_NAME = "scalar_magnitude"
 #: Beyond this distance from the origin (m) GLB vertices are shifted by a whole-metre offset.
 GLB_OFFSET_LIMIT = 1000.0
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success rename it onto ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # ends in .tmp so the worker's clean-up of partial files (``*.tmp``) removes leftovers
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def write_mesh_ply(mesh: Any, path: str | os.PathLike) -> Path:

@@ -80,11 +80,9 @@ def field_volume(field: Any, grid: Grid, chunk: int = 65536, name: str = "") -> 
 
     if chunk < 1:
         raise ShsasError(f"extract.chunk: must be >= 1, got {chunk}")
-    try:
-        p0 = next(field.parameters())
-        device, dtype = p0.device, (p0.dtype if p0.is_floating_point() else torch.float32)
-    except (StopIteration, AttributeError):
-        device, dtype = torch.device("cpu"), torch.float32
+    from .fields.base import device_dtype
+
+    device, dtype = device_dtype(field)
     pts = grid.points()
     out = np.empty(len(pts), dtype=np.float32)
     y00 = 1.0 / math.sqrt(4.0 * math.pi)

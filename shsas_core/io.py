@@ -17,6 +17,7 @@ import h5py
 import numpy as np
 
 from . import __version__
+from .atomic import atomic_path
 from .errors import SurveyValidationError, UnsafeFileError
 from .planar import elevation_info
 from .progress import StopFn, check_stop
@@ -50,8 +51,7 @@ def write_survey(survey: Survey, path: str | os.PathLike, *, compression: str | 
         raise ValueError("cannot write a survey whose samples were not loaded")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
+    with atomic_path(path) as tmp:
         # track_order keeps group iteration stable so repeated writes are byte-identical.
         with h5py.File(tmp, "w", track_order=True) as f:
             f.attrs["format"] = FORMAT_NAME
@@ -77,10 +77,6 @@ def write_survey(survey: Survey, path: str | os.PathLike, *, compression: str | 
                 ex = f.create_group("extras", track_order=True)
                 for k, v in survey.extras.items():
                     ex.create_dataset(k, data=v, compression=compression if v.ndim == 2 else None)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
 
 

@@ -93,9 +93,10 @@ def memory_budget() -> int:
 
 def job_memory_bytes(survey: Survey, spec: ReconstructionSpec) -> int:
     """Estimated peak memory of running ``spec`` on ``survey`` (samples need not be loaded)."""
+    from .methods import NEURAL
     from .volume import Grid
 
-    neural = any(m != "backprojection" for m in spec.methods)
+    neural = any(m in NEURAL for m in spec.methods)
     per_sample = SAMPLE_BYTES + (COMPLEX_SAMPLE_BYTES if survey.meta.signal_kind != "real" else 0)
     per_sample += NEURAL_SAMPLE_BYTES if neural else 0
     voxels = Grid.over(survey.meta.scene_box, spec.grid_count(survey.meta.scene_box)).num_voxels

@@ -27,6 +27,7 @@ steps and inside every long step; it raises :class:`~shsas_core.errors.Cancelled
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -34,7 +35,7 @@ import os
 import shutil
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pydantic import BaseModel, Field
@@ -50,6 +51,7 @@ from .export import (
     write_volume_npy,
 )
 from .extract import PAPER_TAU, ExtractConfig, extract, field_volume, point_cloud
+from .methods import REGISTRY
 from .metrics import GroundTruth, finite_or_none, score_reconstruction
 from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
 from .report import MethodReport, Report, ReportFigures, SignalFit, write_report
@@ -57,8 +59,11 @@ from .spec import ReconstructionSpec
 from .survey import Survey
 from .volume import Grid, Volume
 
-#: Relative cost of each stage, for the overall progress fraction.
-_WEIGHTS = {"deconvolution": 0.05, "backprojection": 0.15, "reed": 1.0, "shsas": 1.0, "report": 0.05}
+if TYPE_CHECKING:  # train imports torch: loaded only when a neural method runs
+    from .train import FitResult
+
+#: Relative cost of each stage, for the overall progress fraction (each method's from the registry).
+_WEIGHTS = {"deconvolution": 0.05, **{m.name: m.cost for m in REGISTRY.values()}, "report": 0.05}
 #: Bump when extraction changes: finished runs then re-extract from their saved volumes.
 EXTRACT_VERSION = 3
 #: Pings whose signal fit is drawn in the report.
@@ -66,6 +71,10 @@ _FIT_PINGS = 3
 #: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
 #: rendering a whole ping costs about as much as a few hundred training iterations on a CPU.
 _MAX_NOVEL_PINGS = 32
+#: The pings rendered for the signal figure and the novel-view errors use the job's ``num_rays``
+#: up to this many rays per ping: whole pings cost far more than a training batch, and 512 rays
+#: already give errors stable to a few per cent.
+MAX_SCORING_RAYS = 512
 
 
 def _evenly(idx: np.ndarray, k: int) -> np.ndarray:
@@ -80,9 +89,9 @@ class PipelineResult(BaseModel):
 
     out_dir: str
     artifacts: list[str] = Field(description="file names in out_dir, sorted")
-    metrics: dict[str, dict[str, float]] = Field(
+    metrics: dict[str, dict[str, float | None]] = Field(
         description="method -> metric -> value: pc_*/mesh_* geometry metrics when the survey has ground "
-        "truth (NaN = undefined), plus threshold, points, faces, seconds")
+        "truth (None = undefined), plus threshold, points, faces, seconds")
     report_json: str
     report_html: str
     timings: dict[str, float] = Field(description="seconds per stage")
@@ -102,7 +111,8 @@ def artifact_names(method: str) -> dict[str, str]:
 
 
 def sh_degree_of(method: str, spec: ReconstructionSpec) -> int | None:
-    return {"backprojection": None, "reed": 0, "shsas": spec.sh_degree}[method]
+    """SH degree of ``method``'s field under ``spec`` (None: backprojection, no field)."""
+    return REGISTRY[method].sh_degree(spec.sh_degree)
 
 
 def holdout_split(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -216,29 +226,29 @@ def run(
     s_pd = _deconvolve(survey, spec, device, ckpt, sub_progress(progress, *bounds["deconvolution"]), should_stop)
     timings["deconvolution"] = time.perf_counter() - t
     train_idx, held_idx = holdout_split(survey.num_pings, spec.holdout_fraction, spec.seed)
-    train = survey.subset(train_idx)
-    train.extras["deconvolved"] = s_pd[train_idx]
     grid = Grid.over(survey.meta.scene_box, spec.grid_count(survey.meta.scene_box))
-    image = _ImageCache(train, grid, device, ckpt, should_stop)
+    # the training pings' s_PD go to the image explicitly (not through survey.extras)
+    image = _ImageCache(survey.subset(train_idx), s_pd[train_idx], grid, device, ckpt, should_stop)
     gt = None
     if survey.has_ground_truth:
         t = time.perf_counter()
         gt = GroundTruth.from_survey(survey)
         timings["ground_truth"] = time.perf_counter() - t
+    job = _Job(spec=spec, survey=survey, s_pd=s_pd, train_idx=train_idx, held_idx=held_idx, grid=grid,
+               image=image, gt=gt, device=device, out=out, should_stop=should_stop)
 
     figures = ReportFigures(gt_mesh=survey.ground_truth_mesh())
     reports: list[MethodReport] = []
     for method in spec.methods:
         check_stop(should_stop)
         prog = sub_progress(progress, *bounds[method])
-        rep, vol, mesh_, fit = _run_method(method, spec, survey, s_pd, train_idx, held_idx, grid, image,
-                                           gt, device, out, ckpt / method, prog, should_stop)
-        reports.append(rep)
-        timings[method] = rep.seconds
-        figures.volumes[method] = vol
-        figures.meshes[method] = mesh_
-        if fit is not None:
-            figures.signal_fits[method] = fit
+        done = _run_method(method, job, ckpt / method, prog)
+        reports.append(done.report)
+        timings[method] = done.report.seconds
+        figures.volumes[method] = done.volume
+        figures.meshes[method] = done.mesh
+        if done.fit is not None:
+            figures.signal_fits[method] = done.fit
 
     # -- report -----------------------------------------------------------------------------
     check_stop(should_stop)
@@ -317,7 +327,7 @@ def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Pat
     s_pd = np.asarray(deconvolve(survey, deconv_config(spec), device=device, progress=progress,
                                  should_stop=should_stop),
                       dtype=np.complex64)
-    from .export import atomic_path
+    from .atomic import atomic_path
 
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         np.save(fh, s_pd)
@@ -328,8 +338,10 @@ class _ImageCache:
     """The job's backprojection image of the training pings on the job's grid, computed on first
     use and kept in ``ckpt/backprojection_image.npy`` (so a resumed job does not recompute it)."""
 
-    def __init__(self, train: Survey, grid: Grid, device: Any, ckpt: Path, should_stop: StopFn):
-        self._train, self._grid, self._device, self._should_stop = train, grid, device, should_stop
+    def __init__(self, train: Survey, signals: np.ndarray, grid: Grid, device: Any, ckpt: Path,
+                 should_stop: StopFn):
+        self._train, self._signals, self._grid = train, signals, grid
+        self._device, self._should_stop = device, should_stop
         self._path = ckpt / "backprojection_image.npy"
         self._volume: Volume | None = None
 
@@ -339,10 +351,10 @@ class _ImageCache:
             if arr.shape == self._grid.shape:
                 self._volume = Volume(self._grid, arr, name="backprojection")
         if self._volume is None:
+            from .atomic import atomic_path
             from .backprojection import backproject_survey
-            from .export import atomic_path
 
-            vol = backproject_survey(self._train, self._grid, self._train.extras["deconvolved"],
+            vol = backproject_survey(self._train, self._grid, self._signals,
                                      device=self._device, progress=progress, should_stop=self._should_stop)
             with atomic_path(self._path) as tmp, open(tmp, "wb") as fh:
                 np.save(fh, vol.values)
@@ -361,12 +373,44 @@ def deconv_config(spec: ReconstructionSpec) -> Any:
     return cfg
 
 
-def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
-                train_idx: np.ndarray, held_idx: np.ndarray, grid: Grid, image: _ImageCache,
-                gt: GroundTruth | None,
-                device: Any, out: Path, ckpt: Path, progress: ProgressFn,
-                should_stop: StopFn) -> tuple[MethodReport, Volume, Any, SignalFit | None]:
-    """Reconstruct, extract, export and score one method (or reload it when already done)."""
+@dataclasses.dataclass(frozen=True)
+class _Job:
+    """What every method of one job shares, built once by :func:`run`.
+
+    Attributes:
+        s_pd: (N, T) complex64 deconvolved signals of all pings; train_idx / held_idx: ping
+            indices fitted / held out; image: the backprojection image of the training pings;
+            gt: the ground truth when the survey has one; out: the job's output folder.
+    """
+
+    spec: ReconstructionSpec
+    survey: Survey
+    s_pd: np.ndarray
+    train_idx: np.ndarray
+    held_idx: np.ndarray
+    grid: Grid
+    image: _ImageCache
+    gt: GroundTruth | None
+    device: Any
+    out: Path
+    should_stop: StopFn
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodOutput:
+    """One method's result: its report entry, volume, extracted mesh and (neural methods) the
+    signal fit drawn in the report."""
+
+    report: MethodReport
+    volume: Volume
+    mesh: Any
+    fit: SignalFit | None = None
+
+
+def _run_method(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> MethodOutput:
+    """Reconstruct, extract, export and score one method (or reload it when already done);
+    checkpoints under ``ckpt``."""
+    spec, survey, s_pd, out, should_stop = job.spec, job.survey, job.s_pd, job.out, job.should_stop
     names = artifact_names(method)
     done = ckpt / "done.json"
     extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION}
@@ -383,13 +427,13 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
             mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
             rep = rep.model_copy(update={"warnings": volume_warnings(vol, rep.threshold, rep.points) + kept})
             progress(1.0, method, {"cached": 1.0})
-            return rep, vol, mesh_, fit
+            return MethodOutput(rep, vol, mesh_, fit)
         # reconstruction done, extraction settings (or code) changed: extract again, no refit
         progress(0.9, method, {"cached": 1.0})
         t0 = time.perf_counter() - rep.seconds
-        rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, rep.loss_curve,
+        rep, mesh_ = _finish(method, spec, vol, job.gt, out, ckpt, names, extract_key, t0, rep.loss_curve,
                              rep.signal_errors, progress, should_stop, kept)
-        return rep, vol, mesh_, fit
+        return MethodOutput(rep, vol, mesh_, fit)
 
     ckpt.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -397,23 +441,22 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
     signal_errs: dict[str, float] = {}
     fit_fig: SignalFit | None = None
     fit_warns: list[ResultWarning] = []
-    if method == "backprojection":
-        vol = image(sub_progress(progress, 0.0, 0.8))
+    if not REGISTRY[method].neural:  # the backprojection image
+        vol = job.image(sub_progress(progress, 0.0, 0.8))
     else:
-        field, result = _fit_neural(method, spec, survey, s_pd, train_idx, image, device, ckpt,
-                                    sub_progress(progress, 0.0, 0.8), should_stop)
-        loss_curve = _loss_curve(result)
-        fit_warns = fit_warnings(getattr(result, "data_loss_history", None) or [])
+        field, result = _fit_neural(method, job, ckpt, sub_progress(progress, 0.0, 0.8))
+        loss_curve = _loss_curve(result.loss_history)
+        fit_warns = fit_warnings(result.data_loss_history)
         check_stop(should_stop)
         progress(0.8, method, {"stage": 1.0})
-        vol = field_volume(field, grid, name=f"{method} |sigma_DC|")
-        amplitude = float(getattr(result, "amplitude", 1.0) or 1.0)
+        vol = field_volume(field, job.grid, name=f"{method} |sigma_DC|")
+        amplitude = float(result.amplitude or 1.0)
         # held-out pings give the novel-view errors and the figure; else a few training pings
-        scored = _evenly(held_idx, _MAX_NOVEL_PINGS)
-        fit_pings = scored if len(scored) else _evenly(train_idx, _FIT_PINGS)
+        scored = _evenly(job.held_idx, _MAX_NOVEL_PINGS)
+        fit_pings = scored if len(scored) else _evenly(job.train_idx, _FIT_PINGS)
         check_stop(should_stop)
-        pred = _render(field, survey, fit_pings, spec, amplitude, device)
-        if len(held_idx):
+        pred = _render(field, survey, fit_pings, spec, amplitude, job.device)
+        if len(job.held_idx):
             from .metrics import signal_errors
 
             signal_errs = signal_errors(pred, s_pd[scored])
@@ -423,9 +466,9 @@ def _run_method(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
         _save_fit(ckpt, fit_fig)
     check_stop(should_stop)
     progress(0.9, method, {})
-    rep, mesh_ = _finish(method, spec, vol, gt, out, ckpt, names, extract_key, t0, loss_curve,
+    rep, mesh_ = _finish(method, spec, vol, job.gt, out, ckpt, names, extract_key, t0, loss_curve,
                          signal_errs, progress, should_stop, fit_warns)
-    return rep, vol, mesh_, fit_fig
+    return MethodOutput(rep, vol, mesh_, fit_fig)
 
 
 def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth | None, out: Path,
@@ -466,28 +509,27 @@ def _read_json(path: Path) -> Any:
         return None
 
 
-def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.ndarray,
-                train_idx: np.ndarray, image: _ImageCache, device: Any, ckpt: Path, progress: ProgressFn,
-                should_stop: StopFn) -> tuple[Any, Any]:
+def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tuple[Any, FitResult]:
     """Build the SH field for ``method``, start it from the backprojection image when
     ``spec.init`` says so, and fit it to the training pings' s_PD (checkpointed under ``ckpt``; a
     compatible checkpoint there is resumed, and then holds the started field already)."""
     import torch
 
-    from .fields import FieldConfig, SHField
+    from .fields import FieldConfig, SHField, encoding_preset
     from .fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
     from .train import CHECKPOINT_NAME, fit
     from .warmstart import WarmStartConfig, distill
 
+    spec, survey, should_stop = job.spec, job.survey, job.should_stop
     torch.manual_seed(spec.seed)
     fcfg = FieldConfig(sh_degree=sh_degree_of(method, spec), scene_box=survey.meta.scene_box,
-                       encoding=encoding_config(spec.encoding))
-    field = SHField(fcfg).to(device)
+                       encoding=encoding_preset(spec.encoding))
+    field = SHField(fcfg).to(job.device)
     fit_progress = progress
     occupancy = None
     if spec.init == "backprojection" or spec.occupancy is not None:
         fit_progress = sub_progress(progress, 0.25, 1.0)
-        vol = image(sub_progress(progress, 0.0, 0.15))
+        vol = job.image(sub_progress(progress, 0.0, 0.15))
         if spec.occupancy is not None:
             occupancy = OccupancyGrid.from_volume(vol, OccupancyConfig(level=spec.occupancy))
         if spec.init == "backprojection" and not (ckpt / CHECKPOINT_NAME).exists():
@@ -499,51 +541,37 @@ def _fit_neural(method: str, spec: ReconstructionSpec, survey: Survey, s_pd: np.
         from .deconv import point_spread
 
         psf = point_spread(survey, deconv_config(spec))
-    result = fit(field, survey, s_pd, cfg, progress=fit_progress, should_stop=should_stop,
-                 checkpoint_dir=ckpt, ping_indices=train_idx, stage=f"fit:{method}", psf=psf,
+    result = fit(field, survey, job.s_pd, cfg, progress=fit_progress, should_stop=should_stop,
+                 checkpoint_dir=ckpt, ping_indices=job.train_idx, stage=f"fit:{method}", psf=psf,
                  occupancy=occupancy)
     # the model is the field inside its mask: render and extract it as it was trained
     return (field if occupancy is None else MaskedField(field, occupancy)), result
 
 
-#: The ``small`` encoding: the setting the trainer's sphere convergence test uses on a CPU.
-SMALL_ENCODING = {"n_levels": 8, "log2_table_size": 13, "base_resolution": 8, "finest_resolution": 128}
-
-
-def encoding_config(name: str) -> Any:
-    """Hash-encoding config for ``spec.encoding`` (``cpu``, ``small`` or ``paper_gpu``)."""
-    from .fields import HashEncodingConfig, encoding_preset
-
-    if name == "small":
-        return HashEncodingConfig(**SMALL_ENCODING)
-    return encoding_preset(name)
-
-
 def train_config(spec: ReconstructionSpec) -> Any:
-    """The trainer's config from the job spec (fields the trainer knows are passed through)."""
-    from .train import TrainConfig
+    """The trainer's config from the job spec. Every key is a TrainConfig field: a name that is
+    not (a renamed field, say) fails here instead of being dropped."""
+    from .train import LossWeights, TrainConfig
 
-    want = {"iters": spec.iters, "seed": spec.seed, "num_bins": spec.num_bins, "num_rays": spec.num_rays, "lr": spec.lr,
-            "lr_final": spec.lr_final,
-            "target": spec.target, "pings_per_batch": spec.pings_per_batch, "device": spec.device,
-            "weights": {"sparsity": spec.sparsity},
-            # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
-            "checkpoint_every": max(10, min(500, spec.iters // 10))}
-    fields = TrainConfig.model_fields
-    return TrainConfig(**{k: v for k, v in want.items() if k in fields})
+    return TrainConfig(
+        iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
+        lr_final=spec.lr_final, target=spec.target, pings_per_batch=spec.pings_per_batch,
+        device=spec.device, weights=LossWeights(sparsity=spec.sparsity),
+        # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
+        checkpoint_every=max(10, min(500, spec.iters // 10)))
 
 
 def _render(field: Any, survey: Survey, pings: np.ndarray, spec: ReconstructionSpec, amplitude: float,
             device: Any) -> np.ndarray:
     from .render import RenderConfig, render_transients
 
-    cfg = RenderConfig(num_rays=min(spec.num_rays, 512))
+    cfg = RenderConfig(num_rays=min(spec.num_rays, MAX_SCORING_RAYS))
     return render_transients(field, survey, pings, cfg, amplitude=amplitude, device=device, seed=spec.seed)
 
 
-def _loss_curve(result: Any, max_points: int = 400) -> list[tuple[int, float]]:
+def _loss_curve(loss_history: list[float], max_points: int = 400) -> list[tuple[int, float]]:
     """(iteration, total loss) from ``FitResult.loss_history``, thinned to ``max_points``."""
-    hist = list(getattr(result, "loss_history", None) or [])
+    hist = list(loss_history)
     step = max(1, math.ceil(len(hist) / max_points))
     keep = list(range(0, len(hist), step))
     if hist and keep[-1] != len(hist) - 1:
@@ -552,7 +580,7 @@ def _loss_curve(result: Any, max_points: int = 400) -> list[tuple[int, float]]:
 
 
 def _save_fit(ckpt: Path, fit: SignalFit) -> None:
-    from .export import atomic_path
+    from .atomic import atomic_path
 
     with atomic_path(ckpt / "signal_fit.npz") as tmp, open(tmp, "wb") as fh:
         np.savez(fh, times=fit.times, measured=fit.measured, predicted=fit.predicted,

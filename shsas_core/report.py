@@ -90,9 +90,10 @@ class Report(BaseModel):
     methods: list[MethodReport] = Field(default_factory=list)
     artifacts: list[str] = Field(default_factory=list, description="file names in out_dir")
 
-    def metrics(self) -> dict[str, dict[str, float]]:
-        """``{method: {metric: value}}`` with undefined values as NaN."""
-        return {m.method: {k: (math.nan if v is None else float(v)) for k, v in m.metrics.items()}
+    def metrics(self) -> dict[str, dict[str, float | None]]:
+        """``{method: {metric: value}}``; an undefined value is None, as in report.json, the
+        pipeline's result, the job table and the API (one form end to end)."""
+        return {m.method: {k: (None if v is None else float(v)) for k, v in m.metrics.items()}
                 for m in self.methods}
 
     def warnings(self) -> dict[str, list[ResultWarning]]:

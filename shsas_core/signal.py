@@ -21,7 +21,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from .errors import ShsasError
-from .survey import SceneBox, Survey
+from .survey import SceneBox, Survey, sample_times
 
 
 def analytic_signal(x: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -108,10 +108,9 @@ ROW_BLOCK = 1024
 def _shift(signals: np.ndarray, t0: np.ndarray, fs: float, freq: float) -> np.ndarray:
     """``signals · exp(j 2π freq t)`` on each ping's absolute time axis, block by block."""
     t0 = np.asarray(t0, dtype=np.float64)
-    k = np.arange(signals.shape[-1]) / fs
     out = np.empty(signals.shape, np.complex64)
     for a in range(0, signals.shape[0], ROW_BLOCK):
-        t = t0[a : a + ROW_BLOCK, None] + k[None, :]
+        t = sample_times(t0[a : a + ROW_BLOCK], fs, signals.shape[-1])
         out[a : a + ROW_BLOCK] = signals[a : a + ROW_BLOCK] * np.exp(2j * np.pi * freq * t)
     return out
 

@@ -11,11 +11,40 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from .methods import REGISTRY
+from .options import (
+    DEVICE,
+    ITERS,
+    LR,
+    LR_FINAL_HELP,
+    NUM_BINS,
+    NUM_RAYS,
+    PINGS_PER_BATCH,
+    SEED,
+    SH_DEGREE,
+    TARGET,
+    TARGET_HELP,
+    DeviceName,
+    EncodingName,
+    FinalLearningRate,
+    GridCount,
+    Iters,
+    LearningRate,
+    NumBins,
+    NumRays,
+    PingsPerBatch,
+    Seed,
+    SHDegree,
+    SparsityWeight,
+    Target,
+)
 from .survey import SceneBox
 from .volume import auto_grid_count
 
+#: The names of shsas_core.methods.REGISTRY (a literal, so the API's schema lists them; a test
+#: checks the two agree).
 Method = Literal["backprojection", "reed", "shsas"]
-METHODS: tuple[str, ...] = ("backprojection", "reed", "shsas")
+METHODS: tuple[str, ...] = tuple(REGISTRY)
 
 
 class ReconstructionSpec(BaseModel):
@@ -23,23 +52,28 @@ class ReconstructionSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    methods: list[Method] = Field(default_factory=lambda: ["backprojection", "reed", "shsas"],
-                                  min_length=1, max_length=3)
-    sh_degree: int = Field(3, ge=0, le=3, description="SH degree L for method 'shsas' (reed is L=0)")
-    iters: int = Field(2000, ge=1, le=200_000, description="training iterations per neural method")
-    grid: int | None = Field(
-        None, ge=8, le=512, description="voxels along the longest scene-box axis; None: the count that "
+    methods: list[Method] = Field(default_factory=lambda: list(METHODS),
+                                  min_length=1, max_length=3, description="methods to run, in order: "
+                                  "backprojection, reed (isotropic neural field, SH degree 0), shsas "
+                                  "(SH degree sh_degree)")
+    # the options the components share take their bounds and defaults from shsas_core.options
+    sh_degree: SHDegree = Field(SH_DEGREE, description="SH degree L for method 'shsas' (reed is L=0)")
+    iters: Iters = ITERS
+    grid: GridCount | None = Field(
+        None, description="voxels along the longest scene-box axis; None: the count that "
         "makes voxels at most 2.5 mm (half the 5 mm metric voxel, so extraction does not cap the "
         "metric), see shsas_core.volume.auto_grid_count")
-    device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
-    seed: int = Field(0, ge=0, le=2**31 - 1)
-    deconvolution: Literal["wiener", "neural", "none"] = "wiener"
+    device: DeviceName = DEVICE
+    seed: Seed = SEED
+    deconvolution: Literal["wiener", "neural", "none"] = Field(
+        "wiener", description="pulse deconvolution before every method (its kernel is also the psf "
+        "forward model's)")
     threshold: float | None = Field(None, gt=0, lt=1, description="normalised iso level; None = documented rule")
-    num_bins: int = Field(64, ge=1, le=4096, description="range bins rendered per ping per iteration")
-    num_rays: int = Field(1024, ge=1, le=65536, description="rays per ping per iteration")
-    pings_per_batch: int = Field(1, ge=1, le=64)
+    num_bins: NumBins = NUM_BINS
+    num_rays: NumRays = NUM_RAYS
+    pings_per_batch: PingsPerBatch = PINGS_PER_BATCH
     holdout_fraction: float = Field(0.0, ge=0, lt=0.9, description="pings held out for novel-view errors")
-    lr: float = Field(1e-3, gt=0, le=1.0, description="Adam learning rate of the neural methods")
+    lr: LearningRate = Field(LR, description="Adam learning rate of the neural methods")
     forward: Literal["psf", "impulse"] = Field(
         "psf", description="forward model of the neural methods: psf convolves the rendered impulse "
         "response with the deconvolution's own point-spread kernel before the data term (a thin "
@@ -54,17 +88,14 @@ class ReconstructionSpec(BaseModel):
         "(and can be non-zero) only where the backprojection image's normalised magnitude exceeds "
         "this level, dilated by 2 voxels (shsas_core.fields.occupancy; about 3x faster iterations); "
         "None: everywhere in the scene box, as in the paper")
-    sparsity: float = Field(
-        1.0, ge=0, le=100.0, description="weight λ2 of the L1 sparsity prior on the neural field's "
+    sparsity: SparsityWeight = Field(
+        1.0, description="weight λ2 of the L1 sparsity prior on the neural field's "
         "density (the paper's L_sparse): it removes the low background the data term leaves in "
         "empty space, which otherwise lowers the extraction level (docs/neural.md); 0: off, as in "
         "the paper's simulated setting")
-    lr_final: float | None = Field(None, gt=0, le=1.0, description="learning rate at the last iteration "
-                                   "(exponential decay from lr); None: constant lr as in the paper")
-    target: Literal["coherent", "envelope"] = Field(
-        "coherent", description="data term of the neural methods: coherent fits complex s_PD (the "
-        "paper); envelope fits |s_PD|, which converges at CPU budgets (docs/neural.md)")
-    encoding: Literal["cpu", "small", "paper_gpu"] = Field(
+    lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
+    target: Target = Field(TARGET, description=TARGET_HELP)
+    encoding: EncodingName = Field(
         "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
         "small (8 levels, 2^13 rows, finest 128: fastest, for short CPU runs), paper_gpu (the paper's)")
 

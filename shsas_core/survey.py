@@ -195,6 +195,15 @@ def parse_meta(data: dict[str, Any] | str) -> SurveyMeta:
         raise SurveyValidationError(field, f"{msg} (got {err.get('input')!r})"[:400], _meta_fix(err)) from None
 
 
+def sample_times(t0: np.ndarray, fs: float, num_samples: int) -> np.ndarray:
+    """Time of every sample after transmit, ``t0[n] + k / fs``: (N,) s -> (N, T) float64 s.
+
+    The one place the ping time axis is derived: the renderer's range bins, the basebanding
+    carrier, the signal shifts and :meth:`Survey.times` all take it from here.
+    """
+    return np.asarray(t0, dtype=np.float64)[:, None] + np.arange(num_samples)[None, :] / fs
+
+
 @dataclasses.dataclass
 class Survey:
     """A bistatic SAS survey.
@@ -263,10 +272,9 @@ class Survey:
 
     def times(self, ping: int | None = None) -> np.ndarray:
         """Sample times after transmit, s: (T,) for one ping or (N, T) for all."""
-        k = np.arange(self.num_samples) / self.meta.fs
         if ping is not None:
-            return self.t0[ping] + k
-        return self.t0[:, None] + k[None, :]
+            return sample_times(self.t0[[ping]], self.meta.fs, self.num_samples)[0]
+        return sample_times(self.t0, self.meta.fs, self.num_samples)
 
     def subset(self, index: np.ndarray | slice) -> Survey:
         """A new survey with only the selected pings (extras with a leading N axis follow)."""

@@ -42,21 +42,44 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-import os
 import random
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from .atomic import atomic_path
 from .device import resolve_device
 from .errors import Cancelled, ShsasError
+from .fields.base import ScatteringField, device_dtype
 from .fields.occupancy import MaskedField, OccupancyGrid
 from .heap import heap_cache
+from .options import (
+    ITERS,
+    LR,
+    LR_FINAL_HELP,
+    NUM_BINS,
+    NUM_RAYS,
+    PINGS_PER_BATCH,
+    SEED,
+    TARGET,
+    TARGET_HELP,
+    UNIFORM_FRACTION,
+    DeviceName,
+    FinalLearningRate,
+    Iters,
+    LearningRate,
+    NumBins,
+    NumRays,
+    PingsPerBatch,
+    Seed,
+    Target,
+    UniformFraction,
+)
 from .progress import ProgressFn, StopFn, check_stop, no_progress
 from .render.renderer import (
     PingGeometry,
@@ -76,6 +99,8 @@ class LossWeights(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     tof: float = Field(1.0, ge=0, description="λ1, ToF data term")
+    # a weight like λ3..λ5, unbounded above; the job spec caps it at 100 for users (SparsityWeight)
+    # and defaults it to 1 (the paper's simulated setting is this 0)
     sparsity: float = Field(0.0, ge=0, description="λ2, L1 of density")
     tv_density: float = Field(0.0, ge=0, description="λ3, TV of density")
     tv_scatter: float = Field(0.0, ge=0, description="λ4, TV of |σ|")
@@ -91,23 +116,24 @@ class LossWeights(BaseModel):
 AIRSAS_WEIGHTS = LossWeights(tof=1.0, sparsity=1e-3, tv_density=0.0, tv_scatter=5e-3, tv_phase=1e-5)
 
 
+#: The sampling options TrainConfig owns and hands to its RenderConfig.
+_SAMPLING = frozenset({"num_bins", "num_rays", "uniform_fraction"})
+
+
 class TrainConfig(BaseModel):
     """Training options. Defaults run on a 2-core CPU; the paper used 200 bins x ~4800 rays."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    iters: int = Field(1500, ge=1, le=1_000_000)
-    lr: float = Field(1e-3, gt=0, le=1.0)
-    lr_final: float | None = Field(
-        None, gt=0, le=1.0, description="learning rate at the last iteration, reached by exponential "
-        "decay from lr (None: constant lr, the paper's setting)")
-    num_bins: int = Field(64, ge=1, le=65536)
-    num_rays: int = Field(1024, ge=1, le=1_000_000)
-    pings_per_batch: int = Field(1, ge=1, le=4096)
-    uniform_fraction: float = Field(0.1, ge=0, le=1, description="uniform share of bin sampling")
-    target: Literal["coherent", "envelope"] = Field(
-        "coherent", description="data term: coherent fits the complex s_PD (the paper); envelope fits "
-        "|s_PD| (real, >= 0), a CPU-budget deviation, see docs/neural.md")
+    # the options a job spec also carries: bounds and defaults from shsas_core.options
+    iters: Iters = ITERS
+    lr: LearningRate = LR
+    lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
+    num_bins: NumBins = NUM_BINS
+    num_rays: NumRays = NUM_RAYS
+    pings_per_batch: PingsPerBatch = PINGS_PER_BATCH
+    uniform_fraction: UniformFraction = UNIFORM_FRACTION
+    target: Target = Field(TARGET, description=TARGET_HELP)
     weights: LossWeights = LossWeights()
     tv_delta: float | None = Field(None, gt=0, description="TV offset length, m; None: box diagonal/128")
     tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms")
@@ -115,15 +141,24 @@ class TrainConfig(BaseModel):
     learn_amplitude: bool = Field(True, description="learn the global scale A (else fixed at its init)")
     psf_window: int = Field(64, ge=1, le=4096, description="with a point-spread kernel (fit's psf): "
                             "contiguous target bins per ping and iteration (replaces num_bins)")
-    seed: int = Field(0, ge=0, le=2**31 - 1)
+    seed: Seed = SEED
     progressive_sh_every: int | None = Field(
         None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
     checkpoint_every: int = Field(500, ge=1)
     heap_cache: bool = Field(True, description="keep freed CPU buffers in the heap during the loop "
                              "(glibc; no per-iteration page faults, see shsas_core.heap)")
-    device: str = Field("auto", pattern=r"^(auto|cpu|cuda(:\d+)?)$")
-    render: RenderConfig = Field(default_factory=RenderConfig,
-                                 description="num_bins/num_rays here are overridden by the fields above")
+    device: DeviceName = "auto"
+    render: RenderConfig = Field(default_factory=RenderConfig, description="the renderer's other options; "
+                                 "its num_bins, num_rays and uniform_fraction are the fields above")
+
+    @model_validator(mode="after")
+    def _one_sampling_setting(self) -> TrainConfig:
+        # render_config() takes these from the fields above: a value set in render as well
+        # would be dropped without a word, so it is an error instead
+        twice = sorted(self.render.model_fields_set & _SAMPLING)
+        if twice:
+            raise ValueError(f"render.{', render.'.join(twice)}: set these on TrainConfig itself")
+        return self
 
     def render_config(self) -> RenderConfig:
         return self.render.model_copy(update={"num_bins": self.num_bins, "num_rays": self.num_rays,
@@ -267,25 +302,6 @@ def _batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, devic
     return pings, geom, radii, target
 
 
-def _set_active_degree(field: torch.nn.Module, degree: int | None) -> None:
-    """Progressive SH: zero the coefficients above ``degree`` through the field's output layer."""
-    handle = getattr(field, "_shsas_progressive_hook", None)
-    if handle is not None:
-        handle.remove()
-        field._shsas_progressive_hook = None
-    if degree is None or degree >= field.cfg.sh_degree:
-        return
-    k, keep = field.cfg.num_coefficients, (degree + 1) ** 2
-    mask = torch.ones(2 * k)
-    mask[keep:k] = 0
-    mask[k + keep:] = 0
-
-    def hook(_mod, _inp, out):
-        return out * mask.to(out.device, out.dtype)
-
-    field._shsas_progressive_hook = field.linears[-1].register_forward_hook(hook)
-
-
 def _psf_batch(data: _Data, survey, it_gen: torch.Generator, cfg: TrainConfig, half: int, device, dtype):
     """One contiguous window of ``psf_window`` target bins per ping (its centre drawn by the bin
     sampler's pdf) and the ``2 half`` bins around it that the kernel reaches: the rendered bins.
@@ -394,9 +410,8 @@ def _iteration_loss(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainC
 
 
 def _atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save(obj, tmp)
 
 
 def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:
@@ -407,9 +422,8 @@ def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[
     c.pop("checkpoint_every")
     c.pop("heap_cache")
     c.pop("device")
-    fcfg = getattr(field, "cfg", None)
     # the C encoding kernel or PyTorch ops: same maths, so a checkpoint moves between machines
-    f = fcfg.model_dump(mode="json", exclude={"native"}) if hasattr(fcfg, "model_dump") else None
+    f = field.config.model_dump(mode="json", exclude={"native"}) if isinstance(field, ScatteringField) else None
     return {"train": c, "field": f, "pings": data.pings.tolist(), "energy": data.energy}
 
 
@@ -459,9 +473,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     t_start = time.perf_counter()
     data = _prepare(survey, signals, ping_indices, cfg.uniform_fraction, cfg.target)
     field.to(device)
-    dtype = next((p.dtype for p in field.parameters()), torch.float32)
-    if cfg.progressive_sh_every is not None and not hasattr(field, "linears"):
-        raise ShsasError("fit: progressive_sh_every needs an SHField (output layer 'linears')")
+    dtype = device_dtype(field)[1]
+    if cfg.progressive_sh_every is not None and not isinstance(field, ScatteringField):
+        raise ShsasError("fit: progressive_sh_every needs a ScatteringField (set_active_degree), e.g. SHField")
     amp_mod = _Amplitude().to(device)
     params = list(field.parameters()) + ([amp_mod.log_amplitude] if cfg.learn_amplitude else [])
     opt = torch.optim.Adam(params, lr=cfg.lr)
@@ -523,7 +537,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             for it in range(start, cfg.iters):
                 check_stop(should_stop)
                 if cfg.progressive_sh_every is not None:
-                    _set_active_degree(field, it // cfg.progressive_sh_every)
+                    field.set_active_degree(it // cfg.progressive_sh_every)
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
@@ -549,7 +563,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             raise
         finally:
             if cfg.progressive_sh_every is not None:
-                _set_active_degree(field, None)
+                field.set_active_degree(None)
     elapsed_loop = time.perf_counter() - t_loop
     save()
     return FitResult(loss_history=loss_hist, data_loss_history=data_hist,
@@ -560,8 +574,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
 
 
 def evaluate_data_loss(field: torch.nn.Module, survey, signals: np.ndarray, ping_indices: Sequence[int],
-                       target: Literal["coherent", "envelope"] = "coherent", num_rays: int = 1024,
-                       amplitude: float | None = None, uniform_fraction: float = 0.1, seed: int = 0) -> float:
+                       target: Target = TARGET, num_rays: int = NUM_RAYS,
+                       amplitude: float | None = None, uniform_fraction: float = UNIFORM_FRACTION,
+                       seed: int = SEED) -> float:
     """Relative data residual of whole pings, a low-noise version of the training data term.
 
     ``Σ p_nk |A ŝ_nk - s_nk|² / Σ p_nk |s_nk|²`` over every valid bin ``k`` of the given pings,

@@ -32,6 +32,7 @@ import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 
 from .errors import ShsasError
+from .fields.base import device_dtype
 from .fields.field import INV_SQRT_4PI
 from .progress import ProgressFn, StopFn, check_stop, no_progress
 from .volume import Volume
@@ -97,8 +98,7 @@ def distill(field: torch.nn.Module, volume: Volume, config: WarmStartConfig | No
         :class:`WarmStartResult`.
     """
     cfg = config or WarmStartConfig()
-    p0 = next(field.parameters())
-    device, dtype = p0.device, p0.dtype
+    device, dtype = device_dtype(field)
     target = image_target(volume, cfg.peak).to(device)
     lo = torch.as_tensor(volume.grid.box_min, dtype=torch.float64)
     size = torch.as_tensor(np.asarray(volume.grid.box_max) - np.asarray(volume.grid.box_min), dtype=torch.float64)

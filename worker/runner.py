@@ -5,14 +5,13 @@ the runner only acts while it holds the lease, writes progress and heartbeats to
 reads ``cancel_requested`` from it, and finishes the job with one conditional UPDATE.
 
 A re-delivered job runs again in the same ``out_dir``; the pipeline's checkpoints make that a
-resume, and files it left half-written (``*.tmp``) are removed first.
+resume, and files it left half-written are removed first (``shsas_core.atomic.remove_partials``).
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import re
 import shutil
 import socket
 import threading
@@ -21,6 +20,8 @@ import traceback
 import uuid
 from collections.abc import Mapping
 from pathlib import Path
+
+from shsas_core.atomic import is_partial, remove_partials
 
 from .settings import Settings
 from .store import Job, JobStore
@@ -137,24 +138,11 @@ class JobControl:
         return self.cancel or self.lost_lease or self.timed_out or _shutdown.is_set()
 
 
-#: Names of half-written files: ``x.tmp``, ``.x.<pid>.tmp`` (export) and ``x.tmp<pid>`` (train).
-PARTIAL = re.compile(r"\.tmp\d*$")
-
-
-def remove_partials(out_dir: Path) -> None:
-    """Delete half-written files a killed run left behind (see :data:`PARTIAL`); keep the rest."""
-    if not out_dir.is_dir():
-        return
-    for p in out_dir.rglob("*.tmp*"):
-        if p.is_file() and PARTIAL.search(p.name):
-            p.unlink(missing_ok=True)
-
-
 def _checked_artifacts(out_dir: Path, names: list[str]) -> list[str]:
     """Artifact names as the API will serve them: plain file names that exist, no repeats."""
     seen: list[str] = []
     for name in names:
-        if Path(name).name != name or name.startswith(".") or PARTIAL.search(name):
+        if Path(name).name != name or name.startswith(".") or is_partial(name):
             raise RuntimeError(f"pipeline returned an artifact name that is not a plain file name: {name!r}")
         if not (out_dir / name).is_file():
             raise RuntimeError(f"pipeline listed artifact {name!r} but did not write it")
@@ -206,7 +194,9 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         except MemoryError:
             return _fail(store, job, owner, "the job ran out of memory (try a smaller grid or fewer rays)")
         artifacts = _checked_artifacts(out_dir, list(result.artifacts))
-        metrics = {m: {k: float(v) for k, v in d.items() if isinstance(v, int | float)}
+        # None (an undefined metric) is kept as it is: JSON null in the job table and the API
+        metrics = {m: {k: (None if v is None else float(v)) for k, v in d.items()
+                       if v is None or isinstance(v, int | float)}
                    for m, d in result.metrics.items()}
         # a result that looks failed still succeeds (the job ran), but says so in its status
         warnings = [{"method": m, **w.model_dump(mode="json")} for m, ws in result.warnings.items() for w in ws]

@@ -15,6 +15,7 @@ import base64
 import hashlib
 import hmac
 import json
+import math
 import os
 import secrets
 import time
@@ -121,6 +122,9 @@ class Job:
         m["artifacts"] = json.loads(m["artifacts"] or "[]")
         metrics = json.loads(m["metrics"]) if m["metrics"] else None
         m["warnings"] = list(metrics.pop(WARNINGS_KEY, None) or []) if metrics else []
+        if metrics:  # rows written before undefined metrics were None hold the text NaN
+            metrics = {meth: {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                              for k, v in d.items()} for meth, d in metrics.items()}
         m["metrics"] = metrics
         m["cancel_requested"] = bool(m["cancel_requested"])
         return cls(**m)

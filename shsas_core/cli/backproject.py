@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("survey", help="survey file (canonical .h5 or any format `shsas convert` reads)")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--grid", type=int, default=128,
-                   help="voxels along the longest axis of the scene box (cubic voxels; default 128)")
+                   help="voxels along the longest axis of the scene box (cubic voxels; 8..512, the job "
+                   "spec's bounds; default 128)")
     p.add_argument("--signal", choices=["deconvolved", "matched", "raw"], default="deconvolved",
                    help="deconvolved: pulse-deconvolved s_PD (default); matched: matched filter; "
                    "raw: the analytic signal of the samples without pulse compression")
@@ -49,8 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from ..signal import analytic_samples, matched_filter
     from ..volume import Grid
 
-    if not 2 <= args.grid <= 1024:
-        raise ShsasError(f"--grid: {args.grid} is outside 2..1024")
+    _check_grid(args.grid)
     if not 1 <= args.upsample <= 32:
         raise ShsasError(f"--upsample: {args.upsample} is outside 1..32")
     device = resolve_device(args.device)
@@ -85,3 +85,16 @@ def run(args: argparse.Namespace) -> int:
                       "signal": source, "seconds": round(seconds, 2),
                       "peak_voxel": [int(i) for i in peak], "peak_position_m": centre.round(4).tolist()}))
     return 0
+
+
+def _check_grid(count: int) -> None:
+    """The job spec's grid bounds (shsas_core.options.GridCount), one line naming the option."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from ..errors import ShsasError
+    from ..options import GridCount
+
+    try:
+        TypeAdapter(GridCount).validate_python(count)
+    except ValidationError as exc:
+        raise ShsasError(f"--grid: {exc.errors()[0]['msg']} (got {count})") from None

@@ -5,11 +5,24 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import typing
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_path
 from ..errors import ShsasError
+from ..options import (
+    DEVICE,
+    ITERS,
+    LR,
+    NUM_BINS,
+    NUM_RAYS,
+    PINGS_PER_BATCH,
+    SEED,
+    SH_DEGREE,
+    EncodingName,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,19 +36,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("survey", help="survey file (canonical .h5 or any format `shsas convert` reads)")
     p.add_argument("--method", choices=["shsas", "reed"], default="shsas",
                    help="shsas: spherical-harmonic field of degree --sh-degree; reed: isotropic (L=0)")
-    p.add_argument("--sh-degree", type=int, default=3, choices=[0, 1, 2, 3], help="SH degree L (shsas only)")
-    p.add_argument("--iters", type=int, default=1500, help="training iterations (paper: 26k-100k on GPU)")
+    # defaults are the job spec's (shsas_core.options); TrainConfig checks the bounds
+    p.add_argument("--sh-degree", type=int, default=SH_DEGREE, choices=[0, 1, 2, 3], help="SH degree L (shsas only)")
+    p.add_argument("--iters", type=int, default=ITERS,
+                   help=f"training iterations (default {ITERS}; paper: 26k-100k on GPU)")
     p.add_argument("--out", required=True, help="output directory (created; resumed if it has a checkpoint)")
-    p.add_argument("--device", default="auto", help="auto, cpu, cuda or cuda:N")
-    p.add_argument("--bins", type=int, default=64, help="range bins per ping per iteration (paper: 200)")
-    p.add_argument("--rays", type=int, default=1024, help="TX rays per ping (paper: ~4800)")
-    p.add_argument("--pings-per-batch", type=int, default=1, help="pings rendered per iteration")
-    p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
+    p.add_argument("--device", default=DEVICE, help="auto, cpu, cuda or cuda:N")
+    p.add_argument("--bins", type=int, default=NUM_BINS,
+                   help=f"range bins per ping per iteration (default {NUM_BINS}; paper: 200)")
+    p.add_argument("--rays", type=int, default=NUM_RAYS, help=f"TX rays per ping (default {NUM_RAYS}; paper: ~4800)")
+    p.add_argument("--pings-per-batch", type=int, default=PINGS_PER_BATCH, help="pings rendered per iteration")
+    p.add_argument("--lr", type=float, default=LR, help="Adam learning rate")
     p.add_argument("--lr-final", type=float, default=None,
                    help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random draw")
+    p.add_argument("--seed", type=int, default=SEED, help="seed of every random draw")
     p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints")
-    p.add_argument("--encoding", choices=["cpu", "paper_gpu"], default=None,
+    p.add_argument("--encoding", choices=sorted(typing.get_args(EncodingName)), default=None,
                    help="hash-grid preset (default: paper_gpu on CUDA, cpu otherwise)")
     p.add_argument("--beamwidth", type=float, default=None,
                    help="full TX cone angle, degrees (default: survey meta, else cover the scene box)")
@@ -83,8 +99,6 @@ def run(args: argparse.Namespace) -> int:
     from ..render import RenderConfig
     from ..train import TrainConfig, fit
 
-    if args.iters < 1:
-        raise ShsasError(f"--iters: must be >= 1, got {args.iters}")
     device = resolve_device(args.device)
     survey = load_survey(args.survey)
     degree = 0 if args.method == "reed" else args.sh_degree
@@ -109,9 +123,8 @@ def run(args: argparse.Namespace) -> int:
         bar.close()
     meta = {"method": args.method, "sh_degree": degree, "signals": source, "survey": str(args.survey),
             "field_config": fcfg.model_dump(mode="json"), "train_config": tcfg.model_dump(mode="json")}
-    tmp = out / "field.pt.tmp"
-    torch.save({"state_dict": field.state_dict(), "amplitude": res.amplitude, **meta}, tmp)
-    tmp.replace(out / "field.pt")
+    with atomic_path(out / "field.pt") as tmp:
+        torch.save({"state_dict": field.state_dict(), "amplitude": res.amplitude, **meta}, tmp)
     (out / "loss_history.json").write_text(json.dumps({**res.to_json(), **meta}, indent=1))
     tail = res.data_loss_history[-min(50, len(res.data_loss_history)):]
     print(f"fit {args.method} (L={degree}) on {survey.num_pings} pings, signals: {source}: "

@@ -4,9 +4,11 @@ Entry points: :class:`HashEncoding` / :class:`HashEncodingConfig` (presets ``CPU
 ``PAPER_GPU_ENCODING``), :func:`sh_basis`, :class:`SHField` / :class:`FieldConfig`.
 """
 
+from .base import ScatteringField, device_dtype
 from .encoding import (
     CPU_ENCODING,
     PAPER_GPU_ENCODING,
+    SMALL_ENCODING,
     HashEncoding,
     HashEncodingConfig,
     encode_fused,
@@ -19,10 +21,13 @@ from .sh import num_coefficients, sh_basis, sh_index
 __all__ = [
     "CPU_ENCODING",
     "PAPER_GPU_ENCODING",
+    "SMALL_ENCODING",
     "FieldConfig",
     "HashEncoding",
     "HashEncodingConfig",
     "SHField",
+    "ScatteringField",
+    "device_dtype",
     "encode_fused",
     "encode_reference",
     "encoding_preset",

@@ -88,11 +88,17 @@ PAPER_GPU_ENCODING = HashEncodingConfig(
 #: CPU default: 12 levels x 2 features, N_min 16, N_max 512, 2^15 rows per level (~0.7 M params).
 CPU_ENCODING = HashEncodingConfig()
 
-PRESETS: dict[str, HashEncodingConfig] = {"paper_gpu": PAPER_GPU_ENCODING, "cpu": CPU_ENCODING}
+#: Small (CPU, short runs): 8 levels, N_min 8, N_max 128, 2^13 rows per level; the setting the
+#: trainer's sphere convergence test uses (the job spec's ``encoding="small"``).
+SMALL_ENCODING = HashEncodingConfig(n_levels=8, log2_table_size=13, base_resolution=8, finest_resolution=128)
+
+#: Every named preset; the job spec's ``encoding`` names one of these (a test checks they agree).
+PRESETS: dict[str, HashEncodingConfig] = {"paper_gpu": PAPER_GPU_ENCODING, "cpu": CPU_ENCODING,
+                                          "small": SMALL_ENCODING}
 
 
 def encoding_preset(name: str) -> HashEncodingConfig:
-    """The named preset (``paper_gpu`` or ``cpu``)."""
+    """The named preset (``paper_gpu``, ``cpu`` or ``small``)."""
     try:
         return PRESETS[name]
     except KeyError:

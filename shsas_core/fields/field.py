@@ -49,7 +49,9 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from ..errors import ShsasError
+from ..options import SH_DEGREE, SHDegree
 from ..survey import SceneBox
+from .base import device_dtype
 from .encoding import CPU_ENCODING, HashEncoding, HashEncodingConfig
 from .sh import num_coefficients, sh_basis
 
@@ -61,7 +63,7 @@ class FieldConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    sh_degree: int = Field(3, ge=0, le=3, description="SH degree L; 0 = isotropic (Reed et al.)")
+    sh_degree: SHDegree = SH_DEGREE
     encoding: HashEncodingConfig = CPU_ENCODING
     hidden: int = Field(32, ge=1, le=1024, description="units per hidden layer")
     layers: int = Field(2, ge=1, le=8, description="hidden layers (ReLU)")
@@ -150,6 +152,38 @@ class SHField(torch.nn.Module):
         box = cfg.scene_box
         self.register_buffer("box_min", torch.tensor(box.min, dtype=torch.float32), persistent=False)
         self.register_buffer("box_size", torch.tensor(box.size, dtype=torch.float32), persistent=False)
+        self._degree_hook: torch.utils.hooks.RemovableHandle | None = None
+
+    # ----------------------------------------------------------------- ScatteringField
+    @property
+    def config(self) -> FieldConfig:
+        return self.cfg
+
+    @property
+    def device(self) -> torch.device:
+        return device_dtype(self)[0]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return device_dtype(self)[1]
+
+    def set_active_degree(self, degree: int | None) -> None:
+        """Progressive SH: zero the coefficients above ``degree`` (None or >= L: all active), by
+        masking the output layer, so every evaluation path (forward, coefficients) sees it."""
+        if self._degree_hook is not None:
+            self._degree_hook.remove()
+            self._degree_hook = None
+        if degree is None or degree >= self.cfg.sh_degree:
+            return
+        k, keep = self.cfg.num_coefficients, (degree + 1) ** 2
+        mask = torch.ones(2 * k)
+        mask[keep:k] = 0
+        mask[k + keep:] = 0
+
+        def hook(_mod, _inp, out):
+            return out * mask.to(out.device, out.dtype)
+
+        self._degree_hook = self.linears[-1].register_forward_hook(hook)
 
     # ----------------------------------------------------------------- internals
     def _check_points(self, x: torch.Tensor, name: str = "x") -> None:

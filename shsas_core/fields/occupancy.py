@@ -16,6 +16,7 @@ the model, so training, rendering and extraction all see the same scene.
 from __future__ import annotations
 
 import hashlib
+from typing import Any
 
 import numpy as np
 import torch
@@ -24,6 +25,7 @@ from scipy import ndimage
 
 from ..errors import ShsasError
 from ..volume import Grid, Volume
+from .base import device_dtype
 
 
 class OccupancyConfig(BaseModel):
@@ -116,6 +118,22 @@ class MaskedField(torch.nn.Module):
         keep = torch.nonzero(self.occupancy.lookup(x), as_tuple=False)[:, 0]
         inner = self.field(x[keep], dirs[keep], with_normals=with_normals, create_graph=create_graph)
         return {k: _scatter(v, keep, x.shape[0]) for k, v in inner.items()}
+
+    # the ScatteringField interface: the wrapped field's
+    @property
+    def config(self) -> Any:
+        return self.field.config
+
+    @property
+    def device(self) -> torch.device:
+        return device_dtype(self.field)[0]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return device_dtype(self.field)[1]
+
+    def set_active_degree(self, degree: int | None) -> None:
+        self.field.set_active_degree(degree)
 
     def coefficients(self, x: torch.Tensor) -> torch.Tensor:
         """Complex SH coefficients (P, (L+1)^2), zero outside the mask."""

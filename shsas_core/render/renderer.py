@@ -30,7 +30,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from torch import Tensor
 
 from ..errors import ShsasError
+from ..fields.base import device_dtype
 from ..heap import heap_cache
+from ..options import NUM_BINS, NUM_RAYS, UNIFORM_FRACTION, NumBins, NumRays, UniformFraction
+from ..survey import sample_times
 from .geometry import area_jacobian, intersect_focal, intersect_quadric, points_on_rays
 from .sampling import beam_axes, bin_radii, cone_directions, cone_half_angles, scene_range_window
 from .transmittance import transmittance, transmittance_cumprod
@@ -41,9 +44,10 @@ class RenderConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    num_bins: int = Field(64, ge=1, le=65536, description="range bins per ping per iteration")
-    num_rays: int = Field(1024, ge=1, le=1_000_000, description="TX rays per ping")
-    uniform_fraction: float = Field(0.1, ge=0, le=1, description="uniform share of the bin sampling pdf")
+    # bounds and defaults shared with TrainConfig and the job spec (shsas_core.options)
+    num_bins: NumBins = NUM_BINS
+    num_rays: NumRays = NUM_RAYS
+    uniform_fraction: UniformFraction = UNIFORM_FRACTION
     beamwidth_deg: float | None = Field(None, gt=0, le=360,
                                         description="full TX cone angle; None: meta.tx_beamwidth_deg, "
                                         "else a cone covering the scene box")
@@ -181,10 +185,8 @@ def render_transients(field: torch.nn.Module, survey, ping_indices: Sequence[int
         :func:`passband_factor`).
     """
     cfg = cfg or RenderConfig()
-    if device is None:
-        p = next(iter(field.parameters()), None)
-        device = p.device if p is not None else torch.device("cpu")
-    dtype = next((q.dtype for q in field.parameters()), torch.float32)
+    own_device, dtype = device_dtype(field)
+    device = own_device if device is None else device
     idx = np.asarray(ping_indices, dtype=np.int64)
     n_t = survey.num_samples
     if idx.size and (idx.min() < 0 or idx.max() >= survey.num_pings):
@@ -247,7 +249,7 @@ def passband_factor(survey, ping_indices: Sequence[int] | np.ndarray | None = No
     if survey.meta.signal_kind != "baseband":
         return None
     idx = np.arange(survey.num_pings) if ping_indices is None else np.asarray(ping_indices, dtype=np.int64)
-    t = survey.t0[idx][:, None] + np.arange(survey.num_samples)[None, :] / survey.meta.fs
+    t = sample_times(survey.t0[idx], survey.meta.fs, survey.num_samples)
     return np.exp(2j * np.pi * float(survey.meta.carrier_hz) * t)
 
 

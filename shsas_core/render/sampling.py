@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from ..errors import ShsasError
+from ..survey import sample_times
 
 #: Golden-ratio conjugate: consecutive multiples spread azimuths evenly (Fibonacci lattice).
 _GOLDEN = 0.6180339887498949
@@ -21,7 +22,7 @@ _GOLDEN = 0.6180339887498949
 
 def bin_radii(t0: np.ndarray, fs: float, c: float, num_samples: int) -> np.ndarray:
     """Two-way path length of every sample, ``r = c (t0 + k / fs)``: (N,) s -> (N, T) m."""
-    return c * (np.asarray(t0, dtype=np.float64)[:, None] + np.arange(num_samples)[None, :] / fs)
+    return c * sample_times(t0, fs, num_samples)
 
 
 def scene_range_window(tx: np.ndarray, rx: np.ndarray, box_min, box_max) -> tuple[np.ndarray, np.ndarray]:

@@ -307,3 +307,20 @@ def test_directional_scale_multiplies_only_the_degree_ge_1_coefficients() -> Non
     y = sh_basis(d, 2).to(torch.float64)
     want = c1[:, 0] * y[:, 0] + 0.1 * (c1[:, 1:] * y[:, 1:]).sum(1)
     torch.testing.assert_close(b["scattering"], want, rtol=1e-10, atol=1e-12)
+
+
+def test_sh_field_and_masked_field_are_scattering_fields() -> None:
+    """The interface train, render and extract use (fields.base.ScatteringField)."""
+    from shsas_core.fields import ScatteringField
+    from shsas_core.fields.occupancy import MaskedField
+
+    field = SHField(FieldConfig(sh_degree=2))
+    assert isinstance(field, ScatteringField)
+    assert (field.device, field.dtype, field.config) == (torch.device("cpu"), torch.float32, field.cfg)
+    masked = MaskedField(field, occupancy=None)  # the interface only: occupancy is not consulted
+    assert isinstance(masked, ScatteringField) and masked.config is field.cfg
+    masked.set_active_degree(0)  # reaches the wrapped field
+    assert field._degree_hook is not None
+    masked.set_active_degree(None)
+    assert field._degree_hook is None
+    assert not isinstance(torch.nn.Linear(2, 2), ScatteringField)

@@ -131,7 +131,8 @@ def test_neural_methods_end_to_end_with_holdout_and_resume(tmp_path, sphere_surv
 
 def test_spec_maps_onto_trainer_and_encoding():
     from shsas_core.fields import PAPER_GPU_ENCODING
-    from shsas_core.pipeline import encoding_config, train_config
+    from shsas_core.fields import encoding_preset as encoding_config
+    from shsas_core.pipeline import train_config
 
     spec = ReconstructionSpec(iters=250, lr=0.02, num_bins=7, num_rays=9, pings_per_batch=3, seed=5)
     cfg = train_config(spec)

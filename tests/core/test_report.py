@@ -48,7 +48,7 @@ def test_report_json_and_html_with_decodable_images(tmp_path):
     back = load_report(jp)
     assert back == rep
     assert back.metrics()["backprojection"]["pc_iou"] == 0.5
-    assert np.isnan(back.metrics()["backprojection"]["mesh_f1"])
+    assert back.metrics()["backprojection"]["mesh_f1"] is None  # undefined: None, as in report.json
     page = open(hp, encoding="utf-8").read()
     imgs = re.findall(r'src="data:image/png;base64,([^"]+)"', page)
     assert len(imgs) == 4  # MIP, meshes, loss, signals

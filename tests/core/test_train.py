@@ -14,7 +14,6 @@ from shsas_core.render import RenderConfig, render_transients, signal_errors
 from shsas_core.train import (
     LossWeights,
     TrainConfig,
-    _set_active_degree,
     convolve_psf,
     fit,
     load_checkpoint,
@@ -106,6 +105,20 @@ def test_bad_signals_are_refused(small):
         fit(_field(survey), survey, np.zeros_like(sig), _cfg(iters=1))
 
 
+def test_progressive_sh_goes_through_the_field_interface(small):
+    """fit raises the active degree through ScatteringField.set_active_degree and leaves every
+    coefficient active at the end; a field without that interface is refused."""
+    survey, sig = small
+    f = _field(survey, degree=2)
+    seen = []
+    real = f.set_active_degree
+    f.set_active_degree = lambda d: (seen.append(d), real(d))[1]
+    fit(f, survey, sig, _cfg(iters=4, progressive_sh_every=2))
+    assert seen[0] == 0 and 1 in seen and seen[-1] is None and f._degree_hook is None
+    with pytest.raises(ShsasError, match="progressive_sh_every"):
+        fit(torch.nn.Linear(3, 2), survey, sig, _cfg(iters=1, progressive_sh_every=1))
+
+
 def test_sparsity_weight_lowers_density(small):
     """λ2 > 0 lowers the density. A is pinned: a learned A lets the prior trade density for
     amplitude (docs/neural.md), which with 15 steps left the effect at the threshold."""
@@ -163,9 +176,9 @@ def test_progressive_sh_masks_higher_degrees(small):
     with torch.no_grad():
         torch.nn.init.normal_(f.linears[-1].weight)
         full = f(x, dirs, with_normals=False)["scattering"]
-        _set_active_degree(f, 0)
+        f.set_active_degree(0)
         iso = f(x, dirs, with_normals=False)["scattering"]
-        _set_active_degree(f, None)
+        f.set_active_degree(None)
         back = f(x, dirs, with_normals=False)["scattering"]
     assert not torch.allclose(full, full[:1].expand(5))  # direction-dependent with L=2
     assert torch.allclose(iso, iso[:1].expand(5))  # isotropic with degree 0 active

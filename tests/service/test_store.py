@@ -67,6 +67,14 @@ def test_warnings_ride_with_the_metrics(store: JobStore) -> None:
     assert [j.warnings for j in store.list_jobs(job.owner)[0] if j.id == job.id] == [[warn]]
 
 
+def test_an_undefined_metric_is_null_end_to_end(store: JobStore) -> None:
+    """None from the pipeline is JSON null in the table and None when read back (not NaN)."""
+    job, _ = new_job(store)
+    assert store.claim(job.id, "w") is not None
+    assert store.finish(job.id, "w", "succeeded", metrics={"reed": {"pc_chamfer_l2": None, "points": 0.0}})
+    assert store.get(job.id).metrics == {"reed": {"pc_chamfer_l2": None, "points": 0.0}}
+
+
 def test_idempotency_same_body_same_job_different_body_conflict(store: JobStore) -> None:
     a, created_a = new_job(store, idempotency_key="k1", request_digest="r1")
     b, created_b = new_job(store, idempotency_key="k1", request_digest="r1")

@@ -1,0 +1,64 @@
+"""The tunable options a job shares between its components, each declared once (issue 14).
+
+``ReconstructionSpec`` (the job, read by the CLI, the API and the worker), ``TrainConfig``,
+``RenderConfig`` and the ``fit`` / ``backproject`` commands used to declare the same option with
+their own bounds (200k against 1M iterations, 65,536 against 1M rays, grid 8..512 against 2..1024).
+Each now takes its type (bounds and description) and its default from here, so they cannot
+disagree. This module imports nothing of the package: every component can use it.
+
+Pydantic forbids a default inside ``Annotated[..., Field(...)]``, so each default is a constant
+beside its type: ``iters: Iters = ITERS``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+#: SH degree L of the neural field (0: isotropic, Reed et al.).
+SHDegree = Annotated[int, Field(ge=0, le=3, description="SH degree L; 0 = isotropic (Reed et al.)")]
+SH_DEGREE = 3
+
+Iters = Annotated[int, Field(ge=1, le=200_000, description="training iterations per neural method")]
+ITERS = 2000
+
+LearningRate = Annotated[float, Field(gt=0, le=1.0, description="Adam learning rate")]
+LR = 1e-3
+FinalLearningRate = Annotated[float, Field(gt=0, le=1.0)]
+#: (an optional field's description must sit on the field itself to reach its JSON schema)
+LR_FINAL_HELP = ("learning rate at the last iteration, reached by exponential decay from lr "
+                 "(None: constant lr, the paper's setting)")
+
+NumBins = Annotated[int, Field(ge=1, le=4096, description="range bins rendered per ping per iteration")]
+NUM_BINS = 64
+NumRays = Annotated[int, Field(ge=1, le=65536, description="TX rays per ping per iteration")]
+NUM_RAYS = 1024
+PingsPerBatch = Annotated[int, Field(ge=1, le=64, description="pings rendered per training iteration")]
+PINGS_PER_BATCH = 1
+
+Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
+SEED = 0
+
+DeviceName = Annotated[str, Field(pattern=r"^(auto|cpu|cuda(:\d+)?)$",
+                                  description="auto (CUDA when present), cpu, cuda or cuda:N")]
+DEVICE = "auto"
+
+Target = Literal["coherent", "envelope"]
+TARGET: Target = "coherent"
+TARGET_HELP = ("data term of the neural methods: coherent fits complex s_PD (the paper); envelope fits "
+               "|s_PD| (real, >= 0), which converges at CPU budgets (docs/neural.md)")
+
+#: The hash-encoding presets by name (shsas_core.fields.encoding.PRESETS; a test checks they
+#: agree). Here, not read from there, so the CLI can list them without importing torch.
+EncodingName = Literal["cpu", "small", "paper_gpu"]
+
+#: Voxels along the longest scene-box axis of a reconstruction grid.
+GridCount = Annotated[int, Field(ge=8, le=512, description="voxels along the longest scene-box axis")]
+
+UniformFraction = Annotated[float, Field(ge=0, le=1, description="uniform share of the range-bin sampling pdf")]
+UNIFORM_FRACTION = 0.1
+
+#: Weight λ2 of the L1 sparsity prior on the field's density.
+SparsityWeight = Annotated[float, Field(ge=0, le=100.0, description="weight λ2 of the L1 sparsity prior "
+                                        "on the neural field's density; 0: off")]
