@@ -112,7 +112,9 @@ def test_status_has_queue_position_eta_and_heartbeat_age(client, server, finishe
                              "the heartbeat to age")
         finally:
             os.kill(worker, signal.SIGCONT)
-        assert stale["status"] == "running" and stale["heartbeat_age_s"] > 3 * float(
+        # not responding means an age above 3 beats; the status rounds the age to 0.01 s, so an
+        # age of 1.501 s reads 1.5 (seen once on a loaded machine)
+        assert stale["status"] == "running" and stale["heartbeat_age_s"] >= 3 * float(
             FAST_TIMINGS["SHSAS_HEARTBEAT_INTERVAL_S"])
         wait_for(client, running["id"], lambda j: j["worker_responding"] is True, 30, "the heartbeat to resume")
         assert finished["queue_position"] is None and finished["eta_s"] is None
