@@ -24,14 +24,34 @@ from pathlib import Path
 import pytest
 
 #: Recorded at commit 16691c2 (branch arch, before any issue-14 change) by this test's own job
-#: script, on the development machine (AMD EPYC, x86-64, torch 2.13.0 CPU). Checked on this CPU
-#: type: another CPU model (other SIMD paths in torch or in the native hash-grid kernel) may give
-#: other bytes; record them again there from the same commit rather than loosening the check.
-EXPECTED = {
-    "backprojection": "c742f403ffa53b7269d67927062a3a771ee7fdbaf2dec862910b050434ae52da",
-    "reed": "814967172c5fefc0289f0682f879e7540cb79acf2c1a670c844e449fe6b18dce",
-    "shsas": "a5c473101b2fbedf3901afe6773db8fa1e9ded38bbe51d0324427c0b7de47104",
+#: script, torch 2.13.0 CPU, once per CPU model the project's machines have had: other SIMD paths
+#: in torch or in the native hash-grid kernel give other bytes on another model. For a new model,
+#: record its digests from that same commit (``python tests/core/test_pipeline_identity.py`` in a
+#: checkout of 16691c2) rather than loosening the check.
+EXPECTED: dict[str, dict[str, str]] = {
+    "AMD EPYC": {
+        "backprojection": "c742f403ffa53b7269d67927062a3a771ee7fdbaf2dec862910b050434ae52da",
+        "reed": "814967172c5fefc0289f0682f879e7540cb79acf2c1a670c844e449fe6b18dce",
+        "shsas": "a5c473101b2fbedf3901afe6773db8fa1e9ded38bbe51d0324427c0b7de47104",
+    },
+    "Intel(R) Xeon(R)": {  # recorded 2026-11-23 from 16691c2
+        "backprojection": "5c24840ecc7a9f55f0045c27dd57d50167e6c0a1a5177cb5ca4a5c39f42df80f",
+        "reed": "ab32e626947db7a0cff0e666d44cf602a01f0be468ea3112cbe3493c3d0f55c5",
+        "shsas": "cbb8d086edb84774dc6cd3b544659ef5f2231e1986391e84c85efe529bd7c7b9",
+    },
 }
+
+
+def cpu_model() -> str:
+    """The processor's model name from /proc/cpuinfo ("" where there is none)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return ""
+
 
 #: The demo's shape, SNR and default chain of methods; fewer pings, voxels and iterations.
 _JOB = r"""
@@ -68,7 +88,11 @@ def job_digests(out: Path) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_demo_chain_volumes_are_byte_identical(tmp_path):
-    assert job_digests(tmp_path) == EXPECTED
+    model = cpu_model()
+    expected = next((d for prefix, d in EXPECTED.items() if model.startswith(prefix)), None)
+    if expected is None:
+        pytest.skip(f"no digests recorded for the CPU {model!r}: record them from commit 16691c2")
+    assert job_digests(tmp_path) == expected
 
 
 if __name__ == "__main__":  # prints the digests to record
