@@ -57,16 +57,22 @@ class BackprojectionConfig(BaseModel):
         None, ge=1, le=1 << 20, description="pings per kernel call (None: 256, or 1024 for the "
         "compiled kernel on CUDA)")
 
-    def blocks(self, device: torch.device, compiled: bool) -> tuple[int, int]:
-        """(voxel_block, ping_chunk) for a device. The compiled kernel holds no (voxels x pings)
-        temporaries, so on a GPU it takes large blocks (fewer launches); the eager kernel
-        materialises ~30 of them and keeps CPU-sized blocks everywhere (about 0.5 GB)."""
-        big = compiled and device.type == "cuda"
+    def blocks(self, device: torch.device, backend: str) -> tuple[int, int]:
+        """(voxel_block, ping_chunk) for a device and a resolved backend (not "auto"). The
+        compiled and Triton kernels hold no (voxels x pings) temporaries, so on a GPU they take
+        large blocks (fewer launches; the Triton kernel keeps its sums in registers, so one block
+        can hold a whole AirSAS grid); the eager kernel materialises ~30 of them and keeps
+        CPU-sized blocks everywhere (about 0.5 GB)."""
+        if backend == "triton":
+            return self.voxel_block or (1 << 22), self.ping_chunk or 4096
+        big = backend == "compiled" and device.type == "cuda"
         return (self.voxel_block or (262_144 if big else 16_384),
                 self.ping_chunk or (1024 if big else 256))
-    backend: Literal["auto", "compiled", "eager"] = Field(
-        "auto", description="compiled = torch.compile kernel; auto compiles for large problems "
-        "(>= 5e7 voxel-pings) and falls back to eager if compilation is unavailable")
+
+    backend: Literal["auto", "compiled", "eager", "triton"] = Field(
+        "auto", description="compiled = torch.compile kernel; triton = the hand-written Triton "
+        "kernel (CUDA only); auto takes triton on CUDA when Triton imports, else compiles for "
+        "large problems (>= 5e7 voxel-pings) and falls back to eager if compilation is unavailable")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,6 +181,22 @@ _COMPILED: dict[str, object] = {}
 AUTO_COMPILE_MIN_WORK = 50_000_000
 
 
+def resolve_backend(backend: str, device: torch.device, work: int) -> str:
+    """The kernel a call runs: "triton", "eager", "compiled", or "auto" (compiled, falling back
+    to eager if compilation fails). ``work`` = voxels x pings."""
+    if backend == "triton" or (backend == "auto" and device.type == "cuda"):
+        from . import backprojection_triton
+
+        if device.type == "cuda" and backprojection_triton.available():
+            return "triton"
+        if backend == "triton":
+            raise ShsasError("backprojection backend 'triton' needs a CUDA device and Triton "
+                             f"(device {device}, Triton importable: {backprojection_triton.available()})")
+    if backend == "auto" and work < AUTO_COMPILE_MIN_WORK:
+        return "eager"  # compiling costs seconds; small problems finish sooner eagerly
+    return backend
+
+
 def _kernel(backend: str, device: torch.device):
     """The block kernel: ``torch.compile``-d once per process and device type, or eager.
 
@@ -184,6 +206,10 @@ def _kernel(backend: str, device: torch.device):
     """
     if backend == "eager":
         return _bp_block
+    if backend == "triton":
+        from .backprojection_triton import bp_block
+
+        return bp_block
     key = device.type
     if key not in _COMPILED:
         _COMPILED[key] = torch.compile(_bp_block, dynamic=False, fullgraph=True)
@@ -290,9 +316,7 @@ def backproject(
     origin = points.mean(0)
     up = cfg.upsample
     fs_u = fs * up
-    backend = cfg.backend
-    if backend == "auto" and v_total * n < AUTO_COMPILE_MIN_WORK:
-        backend = "eager"  # compiling costs seconds; small problems finish sooner eagerly
+    backend = resolve_backend(cfg.backend, dev, v_total * n)
     kernel = _kernel(backend, dev)
     nearest = cfg.interpolation == "nearest"
     with_phase = carrier_hz is not None
@@ -313,7 +337,7 @@ def backproject(
     k = torch.tensor(fs_u / c, **f32)
     phase_k = torch.tensor(2 * math.pi * (carrier_hz or 0.0) / c, **f32)
 
-    vb, pcs = cfg.blocks(dev, compiled=backend != "eager")
+    vb, pcs = cfg.blocks(dev, "compiled" if backend == "auto" else backend)
     nb = min(vb, v_total)
     pc = min(pcs, n)
     # float64 accumulators on the device: no host sync per block, no float32 drift over

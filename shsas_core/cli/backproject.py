@@ -32,8 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--interpolation", choices=["linear", "nearest"], default="linear")
     p.add_argument("--upsample", type=int, default=1, help="FFT upsampling factor before interpolation")
     p.add_argument("--no-beams", action="store_true", help="ignore the survey's TX/RX beam cones")
-    p.add_argument("--backend", choices=["auto", "compiled", "eager"], default="auto",
-                   help="kernel: compiled (torch.compile), eager, or auto (compile large problems)")
+    # the choices of BackprojectionConfig.backend (not imported here: --help stays free of torch)
+    p.add_argument("--backend", choices=["auto", "compiled", "eager", "triton"], default="auto",
+                   help="kernel: compiled (torch.compile), eager, triton (CUDA only), or auto "
+                   "(triton on CUDA, else compile large problems)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 

@@ -10,9 +10,17 @@ Condon-Shortley phase (scipy's ``sph_harm_y``) as
 
 so that Y_1,-1 ∝ y, Y_1,0 ∝ z, Y_1,1 ∝ x (all with positive sign). Columns are ordered
 l-major, m = -l..l: column index ``l^2 + l + m``; (L+1)^2 columns for degree L.
+
+On CUDA, sphericart-torch's kernels load the CUDA 12 runtime compiler (``libnvrtc.so.12``) at
+first use; on a machine with only CUDA 13 (the CUDA builds of torch >= 2.10) that load fails.
+There :func:`sh_basis` falls back, with one warning, to :func:`sh_closed_form`: the same 16
+polynomials written out in torch (checked against sphericart and scipy in tests/core/test_sh.py).
 """
 
 from __future__ import annotations
+
+import logging
+import math
 
 import torch
 
@@ -21,6 +29,10 @@ from ..errors import ShsasError
 MAX_DEGREE = 3
 
 _CALCULATORS: dict[int, torch.nn.Module] = {}
+#: Whether sphericart's CUDA kernels load on this machine (None: not tried yet).
+_SPHERICART_CUDA: bool | None = None
+
+log = logging.getLogger(__name__)
 
 
 def num_coefficients(degree: int) -> int:
@@ -59,4 +71,52 @@ def sh_basis(dirs: torch.Tensor, degree: int) -> torch.Tensor:
         raise ShsasError(f"sh_basis: dirs must have shape (P, 3), got {tuple(dirs.shape)}")
     if dirs.shape[0] == 0:
         return dirs.new_zeros(0, num_coefficients(degree))
+    if dirs.is_cuda and not _sphericart_cuda_loads(dirs.device):
+        return sh_closed_form(dirs, degree)
     return _calculator(degree)(dirs.contiguous())
+
+
+def _sphericart_cuda_loads(device: torch.device) -> bool:
+    global _SPHERICART_CUDA
+    if _SPHERICART_CUDA is None:
+        try:
+            _calculator(0)(torch.ones(1, 3, device=device))
+            _SPHERICART_CUDA = True
+        except (RuntimeError, OSError) as exc:  # its CUDA library or one it needs did not load
+            log.warning("sphericart's CUDA kernels did not load (%s); real spherical harmonics "
+                        "on CUDA use the closed-form torch polynomials", str(exc).splitlines()[0][:200])
+            _SPHERICART_CUDA = False
+    return _SPHERICART_CUDA
+
+
+_C0 = 0.5 * math.sqrt(1 / math.pi)
+_C1 = math.sqrt(3 / (4 * math.pi))
+_C2 = (0.5 * math.sqrt(15 / math.pi), 0.25 * math.sqrt(5 / math.pi), 0.25 * math.sqrt(15 / math.pi))
+_C3 = (0.25 * math.sqrt(35 / (2 * math.pi)), 0.5 * math.sqrt(105 / math.pi),
+       0.25 * math.sqrt(21 / (2 * math.pi)), 0.25 * math.sqrt(7 / math.pi), 0.25 * math.sqrt(105 / math.pi))
+
+
+def sh_closed_form(dirs: torch.Tensor, degree: int) -> torch.Tensor:
+    """The basis of :func:`sh_basis` as explicit polynomials of the unit direction, in torch ops
+    (any device, any float dtype, differentiable to any order).
+
+    Args:
+        dirs: (P, 3) directions, normalised here (a zero vector gives NaN for l >= 1).
+        degree: L in 0..3 (not validated: :func:`sh_basis` does that).
+    Returns:
+        (P, (L+1)^2) values, column ``l^2 + l + m``.
+    """
+    u = dirs / torch.linalg.vector_norm(dirs, dim=1, keepdim=True)
+    x, y, z = u[:, 0], u[:, 1], u[:, 2]
+    cols = [torch.full_like(x, _C0)]
+    if degree >= 1:
+        cols += [_C1 * y, _C1 * z, _C1 * x]
+    if degree >= 2:
+        a, b, c = _C2
+        cols += [a * x * y, a * y * z, b * (3 * z * z - 1), a * x * z, c * (x * x - y * y)]
+    if degree >= 3:
+        a, b, c, d, e = _C3
+        zz = 5 * z * z - 1
+        cols += [a * y * (3 * x * x - y * y), b * x * y * z, c * y * zz, d * z * (5 * z * z - 3),
+                 c * x * zz, e * z * (x * x - y * y), a * x * (x * x - 3 * y * y)]
+    return torch.stack(cols, 1)

@@ -8,7 +8,7 @@ import torch
 from scipy.special import roots_legendre, sph_harm_y
 
 from shsas_core.errors import ShsasError
-from shsas_core.fields.sh import num_coefficients, sh_basis, sh_index
+from shsas_core.fields.sh import num_coefficients, sh_basis, sh_closed_form, sh_index
 
 
 def _dirs(theta: np.ndarray, phi: np.ndarray) -> torch.Tensor:
@@ -85,3 +85,20 @@ def test_bad_input() -> None:
     with pytest.raises(ShsasError, match=r"\(P, 3\)"):
         sh_basis(torch.randn(3, 2), 1)
     assert sh_basis(torch.zeros(0, 3), 2).shape == (0, 9)
+
+
+def test_closed_form_equals_sphericart_and_is_differentiable() -> None:
+    # the CUDA fallback (sphericart's CUDA kernels need CUDA 12's nvrtc): same values as the
+    # sphericart basis the other tests check against scipy, for every degree
+    d = torch.randn(300, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(1)) * 3
+    for degree in range(4):
+        torch.testing.assert_close(sh_closed_form(d, degree), sh_basis(d, degree), rtol=0, atol=1e-12)
+    v = d[:5].clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda w: sh_closed_form(w, 3), (v,))
+    assert torch.autograd.gradgradcheck(lambda w: sh_closed_form(w, 3), (v,))
+
+
+@pytest.mark.gpu
+def test_cuda_basis_matches_cpu() -> None:
+    d = torch.randn(1000, 3, generator=torch.Generator().manual_seed(2))
+    torch.testing.assert_close(sh_basis(d.cuda(), 3).cpu(), sh_basis(d, 3), rtol=1e-5, atol=1e-6)
