@@ -38,6 +38,7 @@ console: $(CONSOLE)
 
 test: $(STAMP) $(CONSOLE)
 	$(BIN)/ruff check .
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)

@@ -1,7 +1,10 @@
 """The ``shsas`` command line. Each subcommand lives in its own module of this package.
 
 Every module in :data:`COMMANDS` defines ``register(subparsers)`` which adds one subparser and
-sets ``func=callable(args) -> int``. Errors caused by input (:class:`ShsasError`) become one
+sets ``func=callable(args) -> int``. The commands that start the service (``serve``, ``worker``,
+``keys``) live beside what they start (``service/cli.py``, ``worker/cli.py``,
+``worker/cli_keys.py``) and join through the ``shsas.commands`` entry points of the installed
+package (pyproject.toml), so this package never imports ``service`` or ``worker``. Errors caused by input (:class:`ShsasError`) become one
 line on stderr and exit code 2; a traceback is shown only with ``--debug``.
 """
 
@@ -14,9 +17,22 @@ import sys
 from .. import __version__
 from ..errors import Cancelled, ShsasError
 
-#: Subcommand modules, in the order of the help text (data flow order).
-COMMANDS = ["info", "convert", "simulate", "autofocus", "backproject", "fit", "reconstruct", "evaluate", "demo",
-            "serve", "worker", "keys"]
+#: Subcommand modules of this package, in the order of the help text (data flow order).
+CORE_COMMANDS = ["info", "convert", "simulate", "autofocus", "backproject", "fit", "reconstruct",
+                 "evaluate", "demo"]
+#: Where other packages register their commands (``register(subparsers)``, as above).
+ENTRY_POINT_GROUP = "shsas.commands"
+
+
+def plugin_commands() -> dict[str, str]:
+    """Command name -> module of the installed ``shsas.commands`` entry points, in their order."""
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+#: Every subcommand: the core ones, then the installed service and worker commands.
+COMMANDS = CORE_COMMANDS + [c for c in plugin_commands() if c not in CORE_COMMANDS]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,8 +46,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"shsas {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
+    for name in CORE_COMMANDS:
         importlib.import_module(f".{name}", __name__).register(sub)
+    for name, module in plugin_commands().items():
+        if name not in CORE_COMMANDS:
+            importlib.import_module(module).register(sub)
     return parser
 
 

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import ShsasError
+    from shsas_core.errors import ShsasError
 
     if args.data_dir:
         os.environ["SHSAS_DATA_DIR"] = args.data_dir
