@@ -3,7 +3,7 @@
 For each scene (the Stanford bunny from ../shared/data/meshes and the built-in shapes), simulate
 a circular AirSAS-like survey at 20 dB, reconstruct it with backprojection, Reed et al. (L = 0)
 and SH-SAS (L = 3) through ``shsas_core.pipeline.run`` and score the point cloud and the mesh
-with the design §5 metrics. Then a sparse-view run (20 % of the pings, seeded) and an SH-degree
+with the metrics of shsas_core/metrics.py. Then a sparse-view run (20 % of the pings, seeded) and an SH-degree
 ablation (L = 1, 2, 3) on the first scene. Prints markdown tables; never asserts.
 
 Usage::

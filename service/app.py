@@ -1,7 +1,7 @@
 """The FastAPI application: ``create_app(settings)``; OpenAPI at /docs.
 
 Routes: POST/GET /reconstructions, GET/DELETE /reconstructions/{id}, POST .../cancel,
-GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz (design §6),
+GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz (docs/service.md),
 and /docs (Swagger UI served from the installed ``swagger-ui-py`` package, no CDN).
 """
 

@@ -1,4 +1,4 @@
-"""Validate an uploaded survey in a separate, resource-limited process (design §6).
+"""Validate an uploaded survey in a separate, resource-limited process (docs/service.md).
 
 The API process never opens uploaded HDF5 itself: a crafted file could exhaust memory or
 trip a bug in the HDF5 library. The child gets ``RLIMIT_AS`` (address space) and

@@ -8,7 +8,6 @@ raises :class:`~shsas_core.errors.SurveyValidationError` naming the field.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -313,6 +312,3 @@ def summarize(survey: Survey) -> dict[str, Any]:
         "warnings": [w for w in (pulse_disagreement(m, survey.pulse),) if w],
     }
 
-
-def summary_json(survey: Survey) -> str:
-    return json.dumps(summarize(survey), indent=2)

@@ -1,4 +1,4 @@
-"""Geometry and signal metrics, exactly per design §5 (the protocol every figure names).
+"""Geometry and signal metrics, the evaluation protocol every figure names (stated below).
 
 Ground truth is a mesh in the survey frame.
 

@@ -1,4 +1,4 @@
-"""One reconstruction job, end to end (design §2): the function the CLI and the worker call.
+"""One reconstruction job, end to end (the flow of docs/architecture.md): the function the CLI and the worker call.
 
 ``run(spec, survey, out_dir)``:
 

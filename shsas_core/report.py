@@ -29,7 +29,7 @@ from .volume import Volume
 REPORT_SCHEMA_VERSION = 1
 
 METRICS_PROTOCOL = (
-    "design §5: GT surface sample 20,000 area-weighted points (seed 0); Chamfer-L2 = sum of the "
+    "metrics protocol (shsas_core/metrics.py): GT surface sample 20,000 area-weighted points (seed 0); Chamfer-L2 = sum of the "
     "two mean squared NN distances (m²); Chamfer-L1 = mean of the two unsquared means (m); "
     "IoU/precision/recall/F1 on 5 mm voxels over the scene box (GT: inside or within one voxel of "
     "the surface; prediction: voxels holding a point / mesh sample); F-score at 5 mm on points. "

@@ -1,6 +1,6 @@
 """The Celery application (``celery -A worker.app worker`` or ``shsas worker``).
 
-Settings follow design §6: late acks and rejection on worker loss so a crashed worker's job is
+Settings (docs/service.md): late acks and rejection on worker loss so a crashed worker's job is
 delivered again, prefetch 1 and concurrency 1 (one process per GPU; CUDA is only touched in the
 pool child that runs the task), a visibility timeout longer than the hard job limit, and
 no result backend (the job table is the source of truth).

@@ -1,4 +1,4 @@
-"""Re-queue jobs whose lease went stale (their worker died or hung), design §6, and re-send
+"""Re-queue jobs whose lease went stale (their worker died or hung) (docs/service.md), and re-send
 queued jobs whose broker message may be lost.
 
 A queued job's message can vanish with the broker's data (Redis restarted without persistence,

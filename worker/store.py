@@ -1,4 +1,4 @@
-"""The job store: the relational table that is the source of truth for every job (design §6).
+"""The job store: the relational table that is the source of truth for every job (docs/service.md).
 
 SQLAlchemy 2 Core over SQLite (default, a file in the data dir) or PostgreSQL (psycopg 3).
 Celery only delivers work; whoever holds a job's lease (``lease_owner`` + fresh

@@ -15,7 +15,7 @@ GT_BOX_MARGIN = 0.02
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "evaluate", help="score reconstructions against a ground-truth mesh (Chamfer, IoU, F1, F-score)",
-        description="Score existing outputs with the metrics of design §5: Chamfer-L2 (m²) and "
+        description="Score existing outputs with the project's metrics (shsas_core/metrics.py): Chamfer-L2 (m²) and "
         "Chamfer-L1 (m) against 20,000 area-weighted GT surface samples, IoU/precision/recall/F1 on "
         "5 mm voxels over the scene box, F-score at 5 mm. TARGET is a `shsas reconstruct` output "
         "folder (every {method}_pointcloud.ply and {method}_mesh.ply in it is scored) or one PLY/OBJ/"

@@ -86,7 +86,7 @@ def console():
     return con if con.is_terminal else Console(width=160)
 
 
-def metrics_table(metrics: Mapping[str, Mapping[str, float]], title: str = "metrics (design §5)"):
+def metrics_table(metrics: Mapping[str, Mapping[str, float]], title: str = "metrics"):
     """A rich table: one row per method and output (point cloud, mesh)."""
     from rich.table import Table
 

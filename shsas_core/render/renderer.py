@@ -1,4 +1,4 @@
-"""Time-resolved volume rendering of pings from a scattering field (paper §4.4, design §4).
+"""Time-resolved volume rendering of pings from a scattering field (paper §4.4; docs/neural.md).
 
 For ping ``n`` with TX ``o_T`` and RX ``o_R`` and a range bin of two-way path ``r_k``:
 
