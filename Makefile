@@ -11,7 +11,7 @@ FIDELITY_ARGS ?=
 CONSOLE := service/console/static/index.html
 CONSOLE_SRC := $(wildcard web/src/*) web/build.mjs web/package.json web/package-lock.json
 
-.PHONY: venv demo test lint bench bench-fidelity clean console
+.PHONY: venv demo test test-fast lint bench bench-fidelity clean console
 
 $(STAMP): pyproject.toml
 	@command -v $(PY) >/dev/null 2>&1 || { echo "need $(PY) on PATH"; exit 1; }
@@ -40,6 +40,12 @@ test: $(STAMP) $(CONSOLE)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
+
+# the inner loop: everything but the slow and the service tests (no Redis, PostgreSQL or browser)
+test-fast: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/lint-imports
+	$(BIN)/python -m pytest -q -m "not slow and not service"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
