@@ -113,6 +113,7 @@ def _aligned_chamfer(survey, pings) -> float:
     return scores["chamfer_l2"]
 
 
+@pytest.mark.slow  # 11-19 s on 2 cores: kept out of make test-fast
 def test_coarse_backprojection_is_the_bunny_and_scrambled_heights_are_not(bunny):
     """Every 2nd level, every 6th degree (4,500 pings), 32 voxels across the box, the project's
     Otsu extraction, rigid ICP (4 yaw starts) to bunny.obj: measured 8.05e-4 m² (the full-size

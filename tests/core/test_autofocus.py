@@ -105,6 +105,7 @@ def test_cli_bad_options_one_line(plane, tmp_path, capsys, argv, needle):
     assert not (tmp_path / "o.h5").exists()
 
 
+@pytest.mark.slow  # 11-19 s on 2 cores: kept out of make test-fast
 def test_level_z_knots_recover_a_wrong_height_step():
     """Five levels recorded with a height step 4 mm per level too small: two knots (one unknown,
     the top level's offset) find the straight line of offsets. Measured: 18.2 mm at the top level
