@@ -4,10 +4,10 @@ One training-like step: ``out = field(x, dirs)`` (density, scattering, normals w
 ``create_graph=True``), a loss that uses all three, ``loss.backward()`` to the parameters.
 
 Modes: ``eager`` (reference: Python loop over levels, normals by double backward), ``fused``
-(batched encoding in PyTorch ops + analytic normals, ``FieldConfig(fast=True, native=False)``),
-``fast`` (the default: ``fused`` with the encoding in the C kernel on a float32 CPU, else the
-same as ``fused``), ``compiled`` (``fused`` plus ``FieldConfig(compile=True)``: encoding kernels
-through torch.compile).
+(batched encoding in PyTorch ops + analytic normals, ``FieldConfig(backend="fused")``),
+``fast`` (the default, ``backend="native"``: ``fused`` with the encoding in the C kernel on a
+float32 CPU, else the same as ``fused``), ``compiled`` (``backend="compiled"``: the fused
+encoding kernels through torch.compile).
 
 Timing: all modes live in one process and their steps are interleaved round by round, so a
 load spike on a shared machine hits every mode alike; min and median over the rounds are
@@ -46,8 +46,8 @@ def _rss_mb() -> float:
 
 def _make(mode: str, preset: str, degree: int, dev: torch.device) -> SHField:
     torch.manual_seed(0)  # same parameters in every mode
-    cfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), fast=mode != "eager",
-                      compile=mode == "compiled", native=mode == "fast")
+    backend = {"eager": "reference", "fused": "fused", "fast": "native", "compiled": "compiled"}[mode]
+    cfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), backend=backend)
     return SHField(cfg).to(dev)
 
 

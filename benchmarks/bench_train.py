@@ -1,9 +1,9 @@
 """Milliseconds per training iteration: fast path vs eager reference, side by side.
 
-fast  = FieldConfig.fast=True (batched hash encoding + analytic normals, one first-order
+fast  = FieldConfig.backend="native" (batched hash encoding + analytic normals, one first-order
         backward; on CPU the encoding runs in the C kernel of shsas_core/fields/native.py) +
         RenderConfig.fast=True (focal closed-form intersection, cumsum transmittance)
-eager = FieldConfig.fast=False (per-level encoding, normals by double backward) +
+eager = FieldConfig.backend="reference" (per-level encoding, normals by double backward) +
         RenderConfig.fast=False (ellipsoid-frame quadric, cumprod transmittance)
 
 One iteration = sample bins and rays, render with normals (Lambertian) and two-way
@@ -68,7 +68,7 @@ def _one(args: argparse.Namespace) -> dict:
         field = _ShellField().to(dev)
     else:
         field = SHField(FieldConfig(sh_degree=3, encoding=encoding_preset(args.encoding), scene_box=box,
-                                    fast=fast)).to(dev)
+                                    backend="native" if fast else "reference")).to(dev)
     # (render's uniform_fraction=1.0 was given here before, and TrainConfig replaced it with its own
     # 0.1 without a word; it is now an error, and the bench keeps measuring what it always measured)
     cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device, render=RenderConfig(fast=fast))

@@ -422,8 +422,8 @@ def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[
     c.pop("checkpoint_every")
     c.pop("heap_cache")
     c.pop("device")
-    # the C encoding kernel or PyTorch ops: same maths, so a checkpoint moves between machines
-    f = field.config.model_dump(mode="json", exclude={"native"}) if isinstance(field, ScatteringField) else None
+    # every field backend computes the same maths, so a checkpoint moves between machines and backends
+    f = field.config.model_dump(mode="json", exclude={"backend"}) if isinstance(field, ScatteringField) else None
     return {"train": c, "field": f, "pings": data.pings.tolist(), "energy": data.energy}
 
 

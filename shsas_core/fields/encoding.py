@@ -31,6 +31,7 @@ respect to the table and the input (double backward for create_graph normals wor
 from __future__ import annotations
 
 import math
+from typing import Literal, get_args
 
 import torch
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -519,25 +520,32 @@ def encode_fused(
     return out, (jac if with_jacobian else None)
 
 
+#: How the encoding (and the field around it) is computed; every backend gives the same values.
+#: ``reference``: per-level Python loop (the test oracle; normals by double backward in the field);
+#: ``fused``: all levels in one gather, with the analytic Jacobian, in PyTorch ops; ``native``:
+#: ``fused`` with the C kernel of :mod:`.native` on float32 CPU tensors when it builds (elsewhere
+#: ``fused``); ``compiled``: ``fused`` through ``torch.compile`` (20-60 s to compile on a 2-core
+#: CPU, no faster there).
+Backend = Literal["reference", "fused", "native", "compiled"]
+BACKENDS: tuple[str, ...] = get_args(Backend)
+
+
 class HashEncoding(torch.nn.Module):
     """Multi-resolution hash encoding module.
 
     Args:
         cfg: grid shape (:class:`HashEncodingConfig`).
-        fast: use :func:`encode_fused` (batched) instead of :func:`encode_reference` (loop).
-        compiled: with ``fast``, run the fused kernels through torch.compile.
-        native: with ``fast``, use the C kernel on float32 CPU tensors (:mod:`.native`).
+        backend: one of :data:`BACKENDS` (same values, see there).
 
     ``forward(u (P,3) in [0,1]^3) -> (P, cfg.output_dim)``.
     """
 
-    def __init__(self, cfg: HashEncodingConfig | None = None, fast: bool = True, compiled: bool = False,
-                 native: bool = True):
+    def __init__(self, cfg: HashEncodingConfig | None = None, backend: Backend = "native"):
         super().__init__()
+        if backend not in BACKENDS:
+            raise ShsasError(f"hash encoding: unknown backend {backend!r} (one of {', '.join(BACKENDS)})")
         self.cfg = cfg or CPU_ENCODING
-        self.fast = fast
-        self.compiled = compiled
-        self.native = native
+        self.backend = backend
         self.layout = LevelLayout(self.cfg)
         self.table = torch.nn.Parameter(
             torch.empty(self.layout.total_rows, self.cfg.n_features).uniform_(-self.cfg.init_scale, self.cfg.init_scale)
@@ -560,15 +568,15 @@ class HashEncoding(torch.nn.Module):
 
     def forward(self, u: torch.Tensor) -> torch.Tensor:
         self._check(u)
-        if self.fast:
-            return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.compiled,
-                                use_native=self.native)[0]
-        return encode_reference(u, self.table, self.layout)
+        if self.backend == "reference":
+            return encode_reference(u, self.table, self.layout)
+        return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.backend == "compiled",
+                            use_native=self.backend == "native")[0]
 
     def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Features (P, D) and their Jacobian as tangents (3, P, D) = d features / d u_a."""
         self._check(u)
         out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True,
-                                compiled=self.compiled, use_native=self.native)
+                                compiled=self.backend == "compiled", use_native=self.backend == "native")
         assert jac is not None
         return out, jac

@@ -22,21 +22,21 @@ term's answer killed every unit of the second hidden layer. The field was then a
 zero normals and no gradient. That happened on 2 of 3 seeds; with the factor, none of the 3
 collapsed (docs/neural.md). L = 0 is unaffected.
 
-``FieldConfig.fast`` picks the implementation, with identical maths:
+``FieldConfig.backend`` picks the implementation, with identical maths:
 
-* ``fast=False`` (reference): Python-loop encoding; normals by ``torch.autograd.grad`` of
+* ``reference``: Python-loop encoding; normals by ``torch.autograd.grad`` of
   ``|σ_DC|`` w.r.t. x (``create_graph=True`` when training, i.e. double backward).
-* ``fast=True``: batched encoding (one gather for all levels) that also returns the analytic
+* ``fused``: batched encoding (one gather for all levels) that also returns the analytic
   Jacobian d features / d u from the same corner values; the Jacobian is contracted with
   d|c_00| / d features from one reverse pass through the MLP (the forward's ReLU masks, one
   extra small matmul per layer). The normal is then an ordinary differentiable function of the
   parameters: training needs one first-order backward instead of a double backward, and the
   encoding is evaluated once per forward.
-* ``fast=True`` on a CPU with float32 (``native=True``, the default): the encoding's forward and
+* ``native`` (the default): ``fused``, and on a CPU with float32 the encoding's forward and
   first-order backward run in the C kernel of :mod:`.native` (one pass per point and level, the
   corner values in registers), built on first use; the PyTorch fused ops when no compiler is
   there. Same values.
-* ``fast=True, compile=True``: the fused encoding kernels through ``torch.compile`` (measured on
+* ``compiled``: the fused encoding kernels through ``torch.compile`` (measured on
   a 2-core CPU: 20–60 s to compile, then no faster than the fused eager kernels; off by default).
 """
 
@@ -52,7 +52,7 @@ from ..errors import ShsasError
 from ..options import SH_DEGREE, SHDegree
 from ..survey import SceneBox
 from .base import device_dtype
-from .encoding import CPU_ENCODING, HashEncoding, HashEncodingConfig
+from .encoding import CPU_ENCODING, Backend, HashEncoding, HashEncodingConfig
 from .sh import num_coefficients, sh_basis
 
 INV_SQRT_4PI = 1.0 / math.sqrt(4.0 * math.pi)
@@ -75,14 +75,10 @@ class FieldConfig(BaseModel):
     directional_scale: float = Field(
         0.1, gt=0, le=1.0, description="the degree >= 1 coefficients are the MLP's outputs times this "
         "factor (a per-coefficient step size for Adam; 1.0: plain outputs), see the module docstring")
-    fast: bool = Field(True, description="batched encoding + analytic normals (same maths)")
-    compile: bool = Field(
-        False, description="with fast: torch.compile the encoding kernels (slow to compile, no gain on CPU)"
-    )
-    native: bool = Field(
-        True, description="with fast, on CPU (float32): the C encoding kernel, built on first use with the "
-        "system C compiler; PyTorch ops when there is none (same values)"
-    )
+    backend: Backend = Field(
+        "native", description="reference (loop encoding, autograd normals: the oracle), fused (batched "
+        "encoding + analytic normals), native (fused + the C encoding kernel on float32 CPU, built on "
+        "first use; fused without a compiler) or compiled (fused through torch.compile); same maths")
 
     @property
     def num_coefficients(self) -> int:
@@ -134,8 +130,7 @@ class SHField(torch.nn.Module):
         self.cfg = cfg = cfg or FieldConfig()
         self.degree = cfg.sh_degree
         self.k = cfg.num_coefficients
-        self.encoding = HashEncoding(cfg.encoding, fast=cfg.fast, compiled=cfg.fast and cfg.compile,
-                                     native=cfg.native)
+        self.encoding = HashEncoding(cfg.encoding, backend=cfg.backend)
         dims = [self.encoding.output_dim] + [cfg.hidden] * cfg.layers + [2 * self.k]
         self.linears = torch.nn.ModuleList(torch.nn.Linear(a, b) for a, b in itertools.pairwise(dims))
         last = self.linears[-1]
@@ -271,7 +266,7 @@ class SHField(torch.nn.Module):
 
         ``create_graph=True`` keeps the result differentiable w.r.t. the parameters (training).
         """
-        if self.cfg.fast:
+        if self.cfg.backend != "reference":
             with torch.set_grad_enabled(create_graph or torch.is_grad_enabled()):
                 out = self._fast_pass(x, None, with_normals=True)
             n = out["normals"]
@@ -297,7 +292,7 @@ class SHField(torch.nn.Module):
         self._check_points(dirs, "dirs")
         if create_graph is None:
             create_graph = torch.is_grad_enabled()
-        if self.cfg.fast:
+        if self.cfg.backend != "reference":
             return self._fast_pass(x, dirs, with_normals, create_graph)
         if not with_normals:
             re, im = self._raw(x)

@@ -148,7 +148,7 @@ def test_custom_table_backward_gradgradcheck() -> None:
 
 
 def test_fused_float32_matches() -> None:
-    enc = HashEncoding(SMALL, fast=True)
+    enc = HashEncoding(SMALL, backend="fused")
     enc.table.data.uniform_(-1, 1)
     u = _points(300, dtype=torch.float32)
     ref = encode_reference(u, enc.table, enc.layout)
@@ -217,19 +217,21 @@ def test_gradcheck_and_gradgradcheck(fast: bool) -> None:
 
 
 def test_module_shapes_and_errors() -> None:
-    for fast in (False, True):
-        enc = HashEncoding(SMALL, fast=fast)
+    for backend in ("reference", "fused", "native"):  # compiled: test_fields (slow)
+        enc = HashEncoding(SMALL, backend=backend)
         assert enc.table.shape == (LevelLayout(SMALL).total_rows, 2)
         assert enc(torch.rand(7, 3)).shape == (7, SMALL.output_dim)
         assert enc(torch.rand(0, 3)).shape == (0, SMALL.output_dim)
         with pytest.raises(ShsasError, match=r"\(P, 3\)"):
             enc(torch.rand(7, 2))
     assert float(HashEncoding(SMALL).table.detach().abs().max()) <= SMALL.init_scale
+    with pytest.raises(ShsasError, match="unknown backend 'fast'"):
+        HashEncoding(SMALL, backend="fast")
 
 
 @pytest.mark.gpu
 def test_fused_matches_reference_on_cuda() -> None:
-    enc = HashEncoding(SMALL, fast=True).cuda()
+    enc = HashEncoding(SMALL, backend="fused").cuda()
     enc.table.data.uniform_(-1, 1)
     u = torch.rand(10_000, 3, device="cuda")
     torch.testing.assert_close(enc(u), encode_reference(u, enc.table, enc.layout), rtol=0, atol=1e-6)

@@ -28,8 +28,8 @@ TINY_ENC = HashEncodingConfig(n_levels=2, n_features=2, log2_table_size=6, base_
 def _pair(degree: int = 3, enc: HashEncodingConfig = ENC, **kw) -> tuple[SHField, SHField]:
     """An eager and a fast field with the same (float64) parameters."""
     torch.manual_seed(0)
-    eager = SHField(FieldConfig(sh_degree=degree, encoding=enc, scene_box=BOX, fast=False, **kw)).double()
-    fast = SHField(FieldConfig(sh_degree=degree, encoding=enc, scene_box=BOX, fast=True, **kw)).double()
+    eager = SHField(FieldConfig(sh_degree=degree, encoding=enc, scene_box=BOX, backend="reference", **kw)).double()
+    fast = SHField(FieldConfig(sh_degree=degree, encoding=enc, scene_box=BOX, backend="native", **kw)).double()
     with torch.no_grad():  # random output weights: every coefficient (not only the DC bias) matters
         eager.linears[-1].weight.normal_(0.0, 0.3)
     fast.load_state_dict(eager.state_dict())
@@ -127,7 +127,8 @@ def _radial_field(fast: bool, center: torch.Tensor, big: float) -> SHField:
     """
     enc = HashEncodingConfig(n_levels=1, n_features=1, log2_table_size=15, base_resolution=31,
                              finest_resolution=31)
-    field = SHField(FieldConfig(sh_degree=1, encoding=enc, scene_box=BOX, hidden=4, layers=2, fast=fast)).double()
+    field = SHField(FieldConfig(sh_degree=1, encoding=enc, scene_box=BOX, hidden=4, layers=2,
+                                backend="native" if fast else "reference")).double()
     n = 31
     g = torch.arange(n + 1, dtype=torch.float64) / n
     k, j, i = torch.meshgrid(g, g, g, indexing="ij")  # row = i + j (n+1) + k (n+1)^2
@@ -192,7 +193,8 @@ def test_zero_field_gives_finite_zero_normals_and_grads() -> None:
 @pytest.mark.parametrize("fast", [False, True])
 def test_gradcheck_field(fast: bool) -> None:
     torch.manual_seed(0)
-    field = SHField(FieldConfig(sh_degree=2, encoding=TINY_ENC, scene_box=BOX, hidden=6, fast=fast)).double()
+    field = SHField(FieldConfig(sh_degree=2, encoding=TINY_ENC, scene_box=BOX, hidden=6,
+                                backend="native" if fast else "reference")).double()
     with torch.no_grad():  # move away from the tiny init so every term is exercised
         field.linears[-1].weight.normal_()
     x = _inside(4).requires_grad_(True)
@@ -222,9 +224,9 @@ def test_initial_density_low_but_nonzero() -> None:
 def test_no_grad_inference_and_shapes() -> None:
     field = SHField(FieldConfig(scene_box=BOX))
     x, d = _inside(64).float(), _dirs(64).float()
-    for fast in (False, True):
-        field.cfg = field.cfg.model_copy(update={"fast": fast})
-        field.encoding.fast = fast
+    for backend in ("reference", "native"):
+        field.cfg = field.cfg.model_copy(update={"backend": backend})
+        field.encoding.backend = backend
         with torch.no_grad():
             out = field(x, d)
             n = field.normals(x)
@@ -272,7 +274,7 @@ def test_fast_matches_eager_on_cuda() -> None:
 def test_compiled_kernels_match_fused_eager() -> None:
     # torch.compile of the encoding kernels (tens of seconds on 2 cores): same values and grads
     _, fast = _pair(3)
-    comp = SHField(FieldConfig(sh_degree=3, encoding=ENC, scene_box=BOX, fast=True, compile=True)).double()
+    comp = SHField(FieldConfig(sh_degree=3, encoding=ENC, scene_box=BOX, backend="compiled")).double()
     comp.load_state_dict(fast.state_dict())
     for p in (300, 257):  # a second size must not need a new compile to be right
         x, d = _inside(p, seed=p), _dirs(p, seed=p)

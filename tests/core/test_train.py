@@ -74,6 +74,26 @@ def test_interrupted_then_resumed_equals_uninterrupted(small, tmp_path):
     assert len(set(np.round(ref.loss_history, 6))) > 5  # a real, changing curve
 
 
+def test_a_checkpoint_resumes_under_another_field_backend(small, tmp_path):
+    # the backends compute the same maths: the fingerprint leaves `backend` out, the rest stays
+    survey, sig = small
+    calls = {"n": 0}
+
+    def stop_after_4() -> bool:
+        calls["n"] += 1
+        return calls["n"] > 4
+
+    with pytest.raises(Cancelled):
+        fit(_field(survey), survey, sig, _cfg(), should_stop=stop_after_4, checkpoint_dir=tmp_path)
+    torch.manual_seed(0)
+    other = SHField(FieldConfig(sh_degree=1, encoding=TINY, hidden=16, scene_box=survey.meta.scene_box,
+                                backend="reference"))
+    assert fit(other, survey, sig, _cfg(), checkpoint_dir=tmp_path).start_iteration == 4
+    wider = SHField(FieldConfig(sh_degree=1, encoding=TINY, hidden=17, scene_box=survey.meta.scene_box))
+    with pytest.raises(ShsasError, match="different configuration"):
+        fit(wider, survey, sig, _cfg(), checkpoint_dir=tmp_path)
+
+
 def test_progress_metrics_and_checkpoint_contents(small, tmp_path):
     survey, sig = small
     seen = []
