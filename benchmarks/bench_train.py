@@ -2,9 +2,9 @@
 
 fast  = FieldConfig.backend="native" (batched hash encoding + analytic normals, one first-order
         backward; on CPU the encoding runs in the C kernel of shsas_core/fields/native.py) +
-        RenderConfig.fast=True (focal closed-form intersection, cumsum transmittance)
+        RenderConfig.backend="fast" (focal closed-form intersection, cumsum transmittance)
 eager = FieldConfig.backend="reference" (per-level encoding, normals by double backward) +
-        RenderConfig.fast=False (ellipsoid-frame quadric, cumprod transmittance)
+        RenderConfig.backend="reference" (ellipsoid-frame quadric, cumprod transmittance)
 
 One iteration = sample bins and rays, render with normals (Lambertian) and two-way
 transmittance, ToF loss, backward, Adam step — the body of ``shsas_core.train.fit``. Each
@@ -71,7 +71,7 @@ def _one(args: argparse.Namespace) -> dict:
                                     backend="native" if fast else "reference")).to(dev)
     # (render's uniform_fraction=1.0 was given here before, and TrainConfig replaced it with its own
     # 0.1 without a word; it is now an error, and the bench keeps measuring what it always measured)
-    cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device, render=RenderConfig(fast=fast))
+    cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device, render=RenderConfig(backend="fast" if fast else "reference"))
     data = _prepare(survey, sig, None, cfg.uniform_fraction)
     amp = _Amplitude().to(dev)
     opt = torch.optim.Adam([*list(field.parameters()), amp.log_amplitude], lr=1e-3)

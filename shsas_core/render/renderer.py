@@ -54,8 +54,9 @@ class RenderConfig(BaseModel):
     lambertian: bool = Field(True, description="multiply by max(0, n . to_tx) (needs normals)")
     two_way_transmittance: bool = Field(True, description="T^2 (return leg ≈ transmit leg) instead of T")
     weighting: Literal["solid_angle", "sum"] = "solid_angle"
-    fast: bool = Field(True, description="focal closed-form intersection + cumsum transmittance; "
-                       "False: ellipsoid-frame quadric + cumprod (paper form, same result)")
+    backend: Literal["fast", "reference"] = Field(
+        "fast", description="fast: focal closed-form intersection + cumsum transmittance; reference: "
+        "ellipsoid-frame quadric + cumprod (the paper's form, same result)")
 
 
 @dataclasses.dataclass
@@ -121,7 +122,8 @@ def render_samples(field: torch.nn.Module, geom: PingGeometry, radii: Tensor, di
     """
     b, k = radii.shape
     m = dirs.shape[1]
-    s = sample_ellipsoids(geom, radii, dirs, fast=cfg.fast)
+    fast = cfg.backend == "fast"
+    s = sample_ellipsoids(geom, radii, dirs, fast=fast)
     x, valid = s["x"], s["valid"]
     look = x - geom.rx[:, None, None, :]
     look = look / look.norm(dim=-1, keepdim=True).clamp_min(1e-12)
@@ -129,7 +131,7 @@ def render_samples(field: torch.nn.Module, geom: PingGeometry, radii: Tensor, di
     vf = valid.to(x.dtype)
     density = out["density"].reshape(b, k, m) * vf
     sigma = out["scattering"].reshape(b, k, m)
-    trans = (transmittance if cfg.fast else transmittance_cumprod)(density, s["l"], cfg.two_way_transmittance)
+    trans = (transmittance if fast else transmittance_cumprod)(density, s["l"], cfg.two_way_transmittance)
     if cfg.lambertian:
         n = out["normals"].reshape(b, k, m, 3)
         g = -(n * dirs[:, None, :, :]).sum(-1)  # (o_T - x)/|o_T - x| = -u
@@ -225,7 +227,7 @@ def _render_rows(field: torch.nn.Module, survey, idx: np.ndarray, radii_all: np.
             rc = radii[:, c0:c0 + bins_per_chunk]
             with torch.enable_grad():  # normals need autograd even when nothing is trained
                 r = render_samples(field, geom, rc, dirs, omega, cfg, 1.0, create_graph=False)
-            s = sample_ellipsoids(geom, rc, dirs, fast=cfg.fast)
+            s = sample_ellipsoids(geom, rc, dirs, fast=cfg.backend == "fast")
             for key in ("density", "scattering", "lambertian", "weight"):
                 parts[key].append(r[key].detach())
             parts["l"].append(s["l"])
