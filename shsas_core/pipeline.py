@@ -28,11 +28,8 @@ steps and inside every long step; it raises :class:`~shsas_core.errors.Cancelled
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 import os
-import shutil
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -44,13 +41,13 @@ from .diagnostics import ResultWarning, fit_warnings, volume_warnings
 from .errors import ShsasError
 from .export import (
     read_volume_npy,
-    write_json,
     write_mesh_glb,
     write_mesh_ply,
     write_point_cloud_ply,
     write_volume_npy,
 )
 from .extract import PAPER_TAU, ExtractConfig, extract, field_volume, point_cloud
+from .job_cache import JobCache, MethodCache
 from .methods import REGISTRY
 from .metrics import GroundTruth, finite_or_none, score_reconstruction
 from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
@@ -163,17 +160,6 @@ def load_input(survey: Survey | str | os.PathLike, spec: ReconstructionSpec | No
     return load_survey(survey, fmt)
 
 
-def survey_fingerprint(survey: Survey) -> str:
-    """A digest of the survey's geometry, metadata and samples (resume key)."""
-    h = hashlib.sha256()
-    h.update(survey.meta.model_dump_json().encode())
-    for a in (survey.tx, survey.rx, survey.t0, survey.samples, survey.gt_vertices):
-        if a is not None:
-            h.update(str(a.shape).encode())
-            h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()[:32]
-
-
 def run(
     spec: ReconstructionSpec,
     survey: Survey | str | os.PathLike,
@@ -209,8 +195,7 @@ def run(
     survey = load_input(survey, spec, memory_budget, should_stop, progress)
     timings["load"] = time.perf_counter() - t
     out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
-    ckpt = out / "checkpoints"
-    _check_resume_key(ckpt, spec, survey)
+    cache = JobCache(out / "checkpoints", spec, survey)
     check_stop(should_stop)
 
     total = _WEIGHTS["deconvolution"] + sum(_WEIGHTS[m] for m in spec.methods) + _WEIGHTS["report"]
@@ -223,12 +208,12 @@ def run(
 
     # -- deconvolution (once, cached) -------------------------------------------------------
     t = time.perf_counter()
-    s_pd = _deconvolve(survey, spec, device, ckpt, sub_progress(progress, *bounds["deconvolution"]), should_stop)
+    s_pd = _deconvolve(survey, spec, device, cache, sub_progress(progress, *bounds["deconvolution"]), should_stop)
     timings["deconvolution"] = time.perf_counter() - t
     train_idx, held_idx = holdout_split(survey.num_pings, spec.holdout_fraction, spec.seed)
     grid = Grid.over(survey.meta.scene_box, spec.grid_count(survey.meta.scene_box))
     # the training pings' s_PD go to the image explicitly (not through survey.extras)
-    image = _ImageCache(survey.subset(train_idx), s_pd[train_idx], grid, device, ckpt, should_stop)
+    image = _ImageCache(survey.subset(train_idx), s_pd[train_idx], grid, device, cache, should_stop)
     gt = None
     if survey.has_ground_truth:
         t = time.perf_counter()
@@ -242,7 +227,7 @@ def run(
     for method in spec.methods:
         check_stop(should_stop)
         prog = sub_progress(progress, *bounds[method])
-        done = _run_method(method, job, ckpt / method, prog)
+        done = _run_method(method, job, cache.method(method), prog)
         reports.append(done.report)
         timings[method] = done.report.seconds
         figures.volumes[method] = done.volume
@@ -296,68 +281,43 @@ def _rewrite_json(report: Report, path: Path) -> None:
     write_text(report.model_dump_json(indent=2), path)
 
 
-def _check_resume_key(ckpt: Path, spec: ReconstructionSpec, survey: Survey) -> None:
-    """Clear checkpoints made for another spec or survey, then record this run's key."""
-    # the threshold only affects extraction, which is redone from the saved volume (see
-    # _run_method), so changing it keeps the reconstructions
-    key = {"spec": spec.model_dump(mode="json", exclude={"threshold"}), "survey": survey_fingerprint(survey)}
-    kp = ckpt / "run_key.json"
-    if kp.exists():
-        try:
-            same = json.loads(kp.read_text()) == key
-        except (OSError, ValueError):
-            same = False
-        if not same:
-            shutil.rmtree(ckpt, ignore_errors=True)
-    ckpt.mkdir(parents=True, exist_ok=True)
-    if not kp.exists():
-        write_json(key, kp)
-
-
-def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, ckpt: Path,
+def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, cache: JobCache,
                 progress: ProgressFn, should_stop: StopFn) -> np.ndarray:
     from .deconv import deconvolve
 
-    path = ckpt / "deconvolved.npy"
-    if path.exists():
-        arr = np.load(path, allow_pickle=False)
-        if arr.shape == survey.shape:
-            progress(1.0, "deconvolution", {"cached": 1.0})
-            return arr
+    arr = cache.array("deconvolved", survey.shape)
+    if arr is not None:
+        progress(1.0, "deconvolution", {"cached": 1.0})
+        return arr
     s_pd = np.asarray(deconvolve(survey, deconv_config(spec), device=device, progress=progress,
                                  should_stop=should_stop),
                       dtype=np.complex64)
-    from .atomic import atomic_path
-
-    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.save(fh, s_pd)
+    cache.save_array("deconvolved", s_pd)
     return s_pd
 
 
 class _ImageCache:
     """The job's backprojection image of the training pings on the job's grid, computed on first
-    use and kept in ``ckpt/backprojection_image.npy`` (so a resumed job does not recompute it)."""
+    use and kept in the job cache (so a resumed job does not recompute it)."""
 
-    def __init__(self, train: Survey, signals: np.ndarray, grid: Grid, device: Any, ckpt: Path,
+    def __init__(self, train: Survey, signals: np.ndarray, grid: Grid, device: Any, cache: JobCache,
                  should_stop: StopFn):
         self._train, self._signals, self._grid = train, signals, grid
         self._device, self._should_stop = device, should_stop
-        self._path = ckpt / "backprojection_image.npy"
+        self._cache = cache
         self._volume: Volume | None = None
 
     def __call__(self, progress: ProgressFn) -> Volume:
-        if self._volume is None and self._path.exists():
-            arr = np.load(self._path, allow_pickle=False)
-            if arr.shape == self._grid.shape:
+        if self._volume is None:
+            arr = self._cache.array("backprojection_image", self._grid.shape)
+            if arr is not None:
                 self._volume = Volume(self._grid, arr, name="backprojection")
         if self._volume is None:
-            from .atomic import atomic_path
             from .backprojection import backproject_survey
 
             vol = backproject_survey(self._train, self._grid, self._signals,
                                      device=self._device, progress=progress, should_stop=self._should_stop)
-            with atomic_path(self._path) as tmp, open(tmp, "wb") as fh:
-                np.save(fh, vol.values)
+            self._cache.save_array("backprojection_image", vol.values)
             self._volume = vol
         progress(1.0, "backprojection", {})
         return self._volume
@@ -407,21 +367,20 @@ class MethodOutput:
     fit: SignalFit | None = None
 
 
-def _run_method(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> MethodOutput:
+def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn) -> MethodOutput:
     """Reconstruct, extract, export and score one method (or reload it when already done);
-    checkpoints under ``ckpt``."""
+    checkpoints in ``cache``."""
     spec, survey, s_pd, out, should_stop = job.spec, job.survey, job.s_pd, job.out, job.should_stop
     names = artifact_names(method)
-    done = ckpt / "done.json"
     extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION}
-    if done.exists() and all((out / n).exists() for n in names.values()):
-        rep = MethodReport.model_validate_json(done.read_text())
+    rep = cache.finished() if all((out / n).exists() for n in names.values()) else None
+    if rep is not None:
         vol = read_volume_npy(out / names["volume"])
-        fit = _load_fit(ckpt)
+        fit = cache.load_fit()
         # the fit is not redone, so its verdict carries over; the volume's checks are cheap and
         # redone, so a run finished before they existed (or with other limits) is checked too
         kept = [w for w in rep.warnings if w.code == "loss_not_falling"]
-        if _read_json(ckpt / "extract.json") == extract_key:
+        if cache.extracted_with(extract_key):
             import trimesh
 
             mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
@@ -431,11 +390,11 @@ def _run_method(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> Met
         # reconstruction done, extraction settings (or code) changed: extract again, no refit
         progress(0.9, method, {"cached": 1.0})
         t0 = time.perf_counter() - rep.seconds
-        rep, mesh_ = _finish(method, spec, vol, job.gt, out, ckpt, names, extract_key, t0, rep.loss_curve,
+        rep, mesh_ = _finish(method, spec, vol, job.gt, out, cache, names, extract_key, t0, rep.loss_curve,
                              rep.signal_errors, progress, should_stop, kept)
         return MethodOutput(rep, vol, mesh_, fit)
 
-    ckpt.mkdir(parents=True, exist_ok=True)
+    cache.folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     loss_curve: list[tuple[int, float]] = []
     signal_errs: dict[str, float] = {}
@@ -444,7 +403,7 @@ def _run_method(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> Met
     if not REGISTRY[method].neural:  # the backprojection image
         vol = job.image(sub_progress(progress, 0.0, 0.8))
     else:
-        field, result = _fit_neural(method, job, ckpt, sub_progress(progress, 0.0, 0.8))
+        field, result = _fit_neural(method, job, cache.folder, sub_progress(progress, 0.0, 0.8))
         loss_curve = _loss_curve(result.loss_history)
         fit_warns = fit_warnings(result.data_loss_history)
         check_stop(should_stop)
@@ -463,22 +422,20 @@ def _run_method(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> Met
         show = slice(0, _FIT_PINGS)
         fit_fig = SignalFit(times=survey.times()[fit_pings[show]] * 1e3, measured=s_pd[fit_pings[show]],
                             predicted=pred[show], pings=[int(i) for i in fit_pings[show]])
-        _save_fit(ckpt, fit_fig)
+        cache.save_fit(fit_fig)
     check_stop(should_stop)
     progress(0.9, method, {})
-    rep, mesh_ = _finish(method, spec, vol, job.gt, out, ckpt, names, extract_key, t0, loss_curve,
+    rep, mesh_ = _finish(method, spec, vol, job.gt, out, cache, names, extract_key, t0, loss_curve,
                          signal_errs, progress, should_stop, fit_warns)
     return MethodOutput(rep, vol, mesh_, fit_fig)
 
 
 def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth | None, out: Path,
-            ckpt: Path, names: dict[str, str], extract_key: dict[str, Any], t0: float,
+            cache: MethodCache, names: dict[str, str], extract_key: dict[str, Any], t0: float,
             loss_curve: list[tuple[int, float]], signal_errs: dict[str, float], progress: ProgressFn,
             should_stop: StopFn, fit_warns: list[ResultWarning] | None = None) -> tuple[MethodReport, Any]:
     """Extract, export, score, check for a failed result (the volume's checks plus
     ``fit_warns`` from the fit), and mark the method done."""
-    from .export import write_text
-
     ecfg = ExtractConfig(threshold=spec.threshold)
     tau, cloud, mesh_ = extract(vol, ecfg)
     write_volume_npy(vol, out / names["volume"])
@@ -496,17 +453,9 @@ def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth 
                        metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
                        artifacts=names, origin_offset=glb["origin_offset"],
                        warnings=volume_warnings(vol, tau, len(cloud)) + list(fit_warns or []))
-    write_json(extract_key, ckpt / "extract.json")
-    write_text(rep.model_dump_json(indent=2), ckpt / "done.json")
+    cache.mark_done(rep, extract_key)
     progress(1.0, method, {})
     return rep, mesh_
-
-
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
 
 
 def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tuple[Any, FitResult]:
@@ -577,19 +526,3 @@ def _loss_curve(loss_history: list[float], max_points: int = 400) -> list[tuple[
     if hist and keep[-1] != len(hist) - 1:
         keep.append(len(hist) - 1)
     return [(i, float(hist[i])) for i in keep if math.isfinite(float(hist[i]))]
-
-
-def _save_fit(ckpt: Path, fit: SignalFit) -> None:
-    from .atomic import atomic_path
-
-    with atomic_path(ckpt / "signal_fit.npz") as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, times=fit.times, measured=fit.measured, predicted=fit.predicted,
-                 pings=np.asarray(fit.pings))
-
-
-def _load_fit(ckpt: Path) -> SignalFit | None:
-    p = ckpt / "signal_fit.npz"
-    if not p.exists():
-        return None
-    with np.load(p, allow_pickle=False) as z:
-        return SignalFit(z["times"], z["measured"], z["predicted"], [int(i) for i in z["pings"]])
