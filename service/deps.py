@@ -1,0 +1,45 @@
+"""FastAPI dependencies shared by the routers: the job store, the settings and the caller.
+
+Each reads what ``create_app`` put on ``app.state``; they are ``async`` so they run on the event
+loop (a thread hop per request would cost more than these reads under 100 pollers).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import pydantic
+from fastapi import Depends, Request
+from fastapi.responses import Response
+
+from worker.settings import Settings
+from worker.store import JobStore
+
+from .auth import owner_of
+from .models import ErrorOut
+
+#: The error answers every job route documents.
+ERRORS = {400: {"model": ErrorOut}, 401: {"model": ErrorOut}, 404: {"model": ErrorOut}}
+
+
+async def current_owner(request: Request) -> str:
+    """The job owner (API key id, or ``local`` for keyless loopback clients): one indexed read."""
+    return owner_of(request, request.app.state.store)
+
+
+async def current_store(request: Request) -> JobStore:
+    return request.app.state.store
+
+
+async def current_settings(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+Owner = Annotated[str, Depends(current_owner)]
+StoreDep = Annotated[JobStore, Depends(current_store)]
+SettingsDep = Annotated[Settings, Depends(current_settings)]
+
+
+def json_response(model: pydantic.BaseModel, status: int = 200) -> Response:
+    """The model serialised once; returning a Response skips FastAPI's second validation pass."""
+    return Response(model.model_dump_json(), status_code=status, media_type="application/json")
