@@ -13,6 +13,7 @@ is imported only for CUDA devices (:func:`available` tells whether it can be).
 from __future__ import annotations
 
 import torch
+from torch import Tensor
 
 try:  # the CPU wheel of torch has no Triton
     import triton
@@ -84,22 +85,9 @@ if triton is not None:
         tl.store(out_im + offs, acc_im, mask=inside)
 
 
-def bp_block(
-    px: torch.Tensor,
-    py: torch.Tensor,
-    pz: torch.Tensor,
-    tx: torch.Tensor,
-    rx: torch.Tensor,
-    a: torch.Tensor,
-    sig: torch.Tensor,
-    k: torch.Tensor,
-    phase_k: torch.Tensor,
-    txd: torch.Tensor,
-    rxd: torch.Tensor,
-    nearest: bool,
-    with_phase: bool,
-    with_beams: bool,
-) -> tuple[torch.Tensor, torch.Tensor]:
+def bp_block(px: Tensor, py: Tensor, pz: Tensor, tx: Tensor, rx: Tensor, a: Tensor, sig: Tensor,
+             k: Tensor, phase_k: Tensor, txd: Tensor, rxd: Tensor, nearest: bool, with_phase: bool,
+             with_beams: bool) -> tuple[Tensor, Tensor]:
     """Sum over one chunk of pings for one block of voxels, on a CUDA device.
 
     Arguments and result as :func:`shsas_core.backprojection._bp_block` (all float32 CUDA
