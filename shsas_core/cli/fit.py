@@ -80,13 +80,10 @@ def _signals(survey, kind: str, device: str) -> tuple[np.ndarray, str]:
             from ..device import resolve_device
 
             return np.asarray(deconvolve(survey, DeconvConfig(), resolve_device(device))), "wiener"
-    if survey.samples is None:
-        raise ShsasError("fit: the survey has no samples")
-    if np.iscomplexobj(survey.samples):
-        return survey.samples, "samples (complex)"
-    from scipy.signal import hilbert
+    from ..signal import analytic_samples  # the one definition of "the samples as complex"
 
-    return hilbert(survey.samples, axis=1).astype(np.complex64), "analytic"
+    complex_ = survey.samples is not None and np.iscomplexobj(survey.samples)
+    return analytic_samples(survey), "samples (complex)" if complex_ else "analytic"
 
 
 def run(args: argparse.Namespace) -> int:

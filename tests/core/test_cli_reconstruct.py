@@ -167,3 +167,4 @@ def _help(parser, command: str) -> str:
     with contextlib.redirect_stdout(buf), contextlib.suppress(SystemExit):
         parser.parse_args([command, "--help"])
     return buf.getvalue()
+
