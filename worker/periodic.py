@@ -1,5 +1,5 @@
-"""A daemon thread that calls one function at a fixed interval until stopped (the reconciler and
-the API's sweeper)."""
+"""A daemon thread that calls one function at a fixed interval until stopped (the reconciler, the
+API's sweeper and a running job's heartbeat)."""
 
 from __future__ import annotations
 
@@ -16,8 +16,9 @@ class Periodic:
     """
 
     def __init__(self, name: str, interval_s: float, tick: Callable[[], object], log: logging.Logger,
-                 what: str):
+                 what: str, join_timeout_s: float = 5.0):
         self._interval_s, self._tick, self._log, self._what = interval_s, tick, log, what
+        self._join_timeout_s = join_timeout_s
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name=name, daemon=True)
 
@@ -27,7 +28,7 @@ class Periodic:
 
     def stop(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=5)
+        self._thread.join(timeout=self._join_timeout_s)
 
     def _loop(self) -> None:
         while not self._stop.wait(self._interval_s):

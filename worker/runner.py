@@ -23,6 +23,7 @@ from pathlib import Path
 
 from shsas_core.atomic import is_partial, remove_partials
 
+from .periodic import Periodic
 from .settings import Settings
 from .store import Job, JobStore
 
@@ -82,16 +83,16 @@ class JobControl:
         self._last_write = 0.0
         self._stage: str | None = None
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._beat, name=f"heartbeat-{job.id}", daemon=True)
+        # a heartbeat write can wait on a busy database: give the last one longer to end
+        self._beats = Periodic(f"heartbeat-{job.id}", settings.heartbeat_interval_s, self._beat, log,
+                               f"job {job.id} heartbeat", join_timeout_s=10.0)
 
     def start(self) -> JobControl:
-        self._thread.start()
+        self._beats.start()
         return self
 
     def close(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=10)
+        self._beats.stop()
 
     def _apply(self, still_owner: bool, cancel: bool) -> None:
         if not still_owner:
@@ -100,14 +101,13 @@ class JobControl:
             self.cancel = True
 
     def _beat(self) -> None:
-        while not self._stop.wait(self.settings.heartbeat_interval_s):
-            self._write()  # the lease tolerates a few missed beats
-            if time.monotonic() - self._t0 > self.settings.job_hard_time_limit_s:
-                reason = self._limit_message("hard")
-                log.error("job %s failed: %s; ending the worker process", self.job_id, reason,
-                          extra={"job_id": self.job_id, "status": "failed", "reason": reason})
-                self.store.finish(self.job_id, self.owner, "failed", error=reason)
-                os._exit(70)
+        self._write()  # the lease tolerates a few missed beats
+        if time.monotonic() - self._t0 > self.settings.job_hard_time_limit_s:
+            reason = self._limit_message("hard")
+            log.error("job %s failed: %s; ending the worker process", self.job_id, reason,
+                      extra={"job_id": self.job_id, "status": "failed", "reason": reason})
+            self.store.finish(self.job_id, self.owner, "failed", error=reason)
+            os._exit(70)
 
     def _limit_message(self, kind: str) -> str:
         limit = self.settings.job_soft_time_limit_s if kind == "soft" else self.settings.job_hard_time_limit_s
