@@ -129,3 +129,33 @@ def test_lost_lease_stops_without_touching_the_job(env) -> None:
     after = store.get(job.id)
     assert after.status == "running" and after.lease_owner == "w2"
     assert (job_paths(settings, job.id)[1] / "checkpoints").is_dir()  # left for the new owner
+
+
+def test_past_the_hard_time_limit_the_heartbeat_fails_the_job_and_ends_the_process(tmp_path: Path):
+    # the pipeline is not listening any more, so the heartbeat thread itself ends the process
+    import subprocess
+    import sys
+
+    code = f"""
+import time
+from pathlib import Path
+from worker.runner import JobControl
+from worker.settings import Settings
+from worker.store import JobStore
+settings = Settings(data_dir=Path({str(tmp_path / 'data')!r}), heartbeat_interval_s=0.1,
+                    job_soft_time_limit_s=0.2, job_hard_time_limit_s=0.3)
+store = JobStore.from_settings(settings)
+job, _ = store.create_job(owner="o", spec={{}}, input_digest="x", input_name="s.h5", input_bytes=1, queue="cpu")
+print(job.id, flush=True)
+store.claim(job.id, "w1")
+JobControl(store, settings, job, "w1").start()
+time.sleep(30)
+"""
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=root)
+    assert proc.returncode == 70, proc.stderr[-2000:]
+    job_id = proc.stdout.split()[0]
+    store = JobStore.from_settings(Settings(data_dir=tmp_path / "data"))
+    job = store.get(job_id)
+    store.dispose()
+    assert job.status == "failed" and "hard time limit of 0.3 s" in job.error
