@@ -18,10 +18,9 @@
 
 Idempotent and resumable: every artifact name is fixed (``{method}_volume.npy``,
 ``{method}_pointcloud.ply``, ``{method}_mesh.ply``, ``{method}_mesh.glb``, ``report.json``, ...),
-written to a temporary file and renamed; the trainer checkpoints under
-``out_dir/checkpoints/{method}``; a finished method leaves ``checkpoints/{method}/done.json`` and
-is skipped when the job is run again in the same ``out_dir`` with the same spec and survey (a
-different spec or survey clears the checkpoints first). ``should_stop()`` is checked between
+written to a temporary file and renamed; what a re-run finds under ``out_dir/checkpoints`` (and
+when that folder is cleared) is :mod:`shsas_core.job_cache`'s: a finished method is skipped when
+the job is run again in the same ``out_dir`` with the same spec and survey. ``should_stop()`` is checked between
 steps and inside every long step; it raises :class:`~shsas_core.errors.Cancelled`.
 """
 

@@ -1,12 +1,5 @@
 """The job store's records: the tables, the decoded rows (``Job``, ``ApiKey``), the engine.
 
-The job table is the source of truth for every job (docs/service.md).
-
-SQLAlchemy 2 Core over SQLite (default, a file in the data dir) or PostgreSQL (psycopg 3).
-Celery only delivers work; whoever holds a job's lease (``lease_owner`` + fresh
-``heartbeat_at``) runs it, and every state change is a single conditional UPDATE so that two
-workers, two API processes or two reconcilers can never both win the same transition.
-
 Times are float seconds since the epoch (UTC), so staleness is plain arithmetic in SQL on
 both back ends.
 """
