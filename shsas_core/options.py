@@ -37,6 +37,13 @@ NUM_RAYS = 1024
 PingsPerBatch = Annotated[int, Field(ge=1, le=64, description="pings rendered per training iteration")]
 PINGS_PER_BATCH = 1
 
+AverageLast = Annotated[float, Field(gt=0, le=1)]
+#: Tail averaging of the neural methods (docs/neural.md, "Averaged weights").
+AVERAGE_LAST = 0.5
+AVERAGE_LAST_HELP = ("the neural field returned is the uniform average of its weights over this last "
+                     "fraction of the training iterations (tail averaging), which removes the "
+                     "iterate-to-iterate jitter of one-ping batches; None: the last iterate (the paper)")
+
 Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
 SEED = 0
 

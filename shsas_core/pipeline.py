@@ -503,7 +503,7 @@ def train_config(spec: ReconstructionSpec) -> Any:
 
     return TrainConfig(
         iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
-        lr_final=spec.lr_final, target=spec.target, pings_per_batch=spec.pings_per_batch,
+        lr_final=spec.lr_final, average_last=spec.average_last, target=spec.target, pings_per_batch=spec.pings_per_batch,
         device=spec.device, weights=LossWeights(sparsity=spec.sparsity),
         # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
         checkpoint_every=max(10, min(500, spec.iters // 10)))

@@ -13,6 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from .methods import REGISTRY
 from .options import (
+    AVERAGE_LAST,
+    AVERAGE_LAST_HELP,
     DEVICE,
     ITERS,
     LR,
@@ -24,6 +26,7 @@ from .options import (
     SH_DEGREE,
     TARGET,
     TARGET_HELP,
+    AverageLast,
     DeviceName,
     EncodingName,
     FinalLearningRate,
@@ -94,6 +97,7 @@ class ReconstructionSpec(BaseModel):
         "empty space, which otherwise lowers the extraction level (docs/neural.md); 0: off, as in "
         "the paper's simulated setting")
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
+    average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
     target: Target = Field(TARGET, description=TARGET_HELP)
     encoding: EncodingName = Field(
         "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
@@ -117,5 +121,6 @@ class ReconstructionSpec(BaseModel):
 PAPER_SETTINGS: dict[str, object] = {
     "init": "none", "forward": "impulse", "target": "coherent", "lr": 1e-3, "encoding": "paper_gpu",
     "num_bins": 200, "num_rays": 4800, "iters": 50_000, "occupancy": None, "sparsity": 0.0,
+    "average_last": None,
 }
 PRESETS: dict[str, dict[str, object]] = {"default": {}, "paper": PAPER_SETTINGS}

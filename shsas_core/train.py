@@ -59,6 +59,8 @@ from .fields.base import ScatteringField, device_dtype
 from .fields.occupancy import MaskedField, OccupancyGrid
 from .heap import heap_cache
 from .options import (
+    AVERAGE_LAST,
+    AVERAGE_LAST_HELP,
     ITERS,
     LR,
     LR_FINAL_HELP,
@@ -69,6 +71,7 @@ from .options import (
     TARGET,
     TARGET_HELP,
     UNIFORM_FRACTION,
+    AverageLast,
     DeviceName,
     FinalLearningRate,
     Iters,
@@ -142,6 +145,7 @@ class TrainConfig(BaseModel):
     psf_window: int = Field(64, ge=1, le=4096, description="with a point-spread kernel (fit's psf): "
                             "contiguous target bins per ping and iteration (replaces num_bins)")
     seed: Seed = SEED
+    average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
     progressive_sh_every: int | None = Field(
         None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
     checkpoint_every: int = Field(500, ge=1)
@@ -415,7 +419,8 @@ def _atomic_save(obj: Any, path: Path) -> None:
 
 
 def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:
-    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays over them)."""
+    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays over
+    them; a weight average is checked by :func:`_resume_average`)."""
     c = cfg.model_dump(mode="json")
     if cfg.lr_final is None:
         c.pop("iters")
@@ -495,6 +500,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
         psf_t = torch.as_tensor(k.astype(np.complex64), device=device)
         fp["psf"] = [[float(v.real), float(v.imag)] for v in k]
 
+    avg = _tail_average(field, cfg)
+    avg_from = cfg.iters - _averaged_iterations(cfg)  # the iterates after this many steps are averaged
     ckpt_path = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
     loss_hist: list[float] = []
     data_hist: list[float] = []
@@ -507,6 +514,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
         field.load_state_dict(ck["field"])
         amp_mod.load_state_dict(ck["amplitude"])
         opt.load_state_dict(ck["optimizer"])
+        if avg is not None:
+            _resume_average(avg, ck, avg_from, cfg, ckpt_path)
         start = int(ck["iteration"])
         loss_hist, data_hist = list(ck["loss_history"]), list(ck["data_loss_history"])
         torch.set_rng_state(ck["rng"]["torch"])
@@ -526,7 +535,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                       "optimizer": opt.state_dict(), "loss_history": loss_hist,
                       "data_loss_history": data_hist, "rng": rng, "fingerprint": fp,
                       "config": cfg.model_dump(mode="json"), "signal_energy": data.energy,
-                      "field_config": fp["field"]}, ckpt_path)
+                      "field_config": fp["field"],
+                      "average": avg.state_dict() if avg is not None else None,
+                      "average_from": avg_from if avg is not None else None}, ckpt_path)
 
     if start == 0:
         _init_amplitude(model, amp_mod, data, survey, cfg, device, dtype, psf_t)
@@ -551,6 +562,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
+                if avg is not None and it >= avg_from:
+                    avg.update_parameters(field)
                 it_done = it + 1
                 loss_hist.append(loss_value)
                 data_hist.append(float(data_loss.detach()))
@@ -566,6 +579,10 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 field.set_active_degree(None)
     elapsed_loop = time.perf_counter() - t_loop
     save()
+    if avg is not None and it_done > avg_from:  # after save(): a resumed run continues from the iterate
+        with torch.no_grad():
+            for p, q in zip(field.parameters(), avg.module.parameters(), strict=True):
+                p.copy_(q)
     return FitResult(loss_history=loss_hist, data_loss_history=data_hist,
                      iters_per_s=(it_done - start) / elapsed_loop if it_done > start and elapsed_loop > 0 else 0.0,
                      iterations=it_done, start_iteration=start, amplitude=float(amp_mod().detach()),
@@ -606,6 +623,35 @@ def evaluate_data_loss(field: torch.nn.Module, survey, signals: np.ndarray, ping
         e_pred = float((p * np.abs(pred) ** 2).sum())
         amplitude = max(float((p * (np.conj(pred) * s)).sum().real) / e_pred, 0.0) if e_pred > 0 else 0.0
     return float((p * np.abs(amplitude * pred - s) ** 2).sum()) / den
+
+
+def _averaged_iterations(cfg: TrainConfig) -> int:
+    """How many of the last iterates the tail average takes (at least one)."""
+    return max(1, round(float(cfg.average_last or 0.0) * cfg.iters))
+
+
+def _tail_average(field: torch.nn.Module, cfg: TrainConfig) -> torch.nn.Module | None:
+    """A running uniform mean of ``field``'s parameters (torch's ``AveragedModel``), or None."""
+    if cfg.average_last is None:
+        return None
+    from torch.optim.swa_utils import AveragedModel
+
+    return AveragedModel(field, use_buffers=False)  # its default: the running uniform mean
+
+
+def _resume_average(avg: torch.nn.Module, ck: dict[str, Any], avg_from: int, cfg: TrainConfig,
+                    path: Path) -> None:
+    """Restore the weight average of checkpoint ``ck`` into ``avg``, or start it afresh when the
+    resumed run (more iterations) averages a span that begins after the checkpoint."""
+    start = int(ck["iteration"])
+    if ck.get("average_from") == avg_from and ck.get("average") is not None:
+        avg.load_state_dict(ck["average"])
+    elif start > avg_from:
+        frac = float(cfg.average_last or 1.0)
+        fix = (f"{math.ceil(start / (1 - frac))} iterations or more" if frac < 1 else "a new output directory")
+        raise ShsasError(f"fit: checkpoint {path} is at iteration {start}, past iteration {avg_from} "
+                         f"where this run's weight average begins (average_last {frac:g} of "
+                         f"{cfg.iters} iterations); fix: {fix}")
 
 
 def _scheduled_lr(cfg: TrainConfig, it: int) -> float:

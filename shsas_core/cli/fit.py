@@ -13,6 +13,7 @@ import numpy as np
 from ..atomic import atomic_path
 from ..errors import ShsasError
 from ..options import (
+    AVERAGE_LAST,
     DEVICE,
     ITERS,
     LR,
@@ -32,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "pulse-deconvolved signals (docs/neural.md). Writes OUT/checkpoint.pt (every "
         "--checkpoint-every iterations and at the end), OUT/field.pt (weights + configs) and "
         "OUT/loss_history.json. Re-running with the same OUT resumes from the checkpoint and "
-        "gives the same result as an uninterrupted run; a larger --iters continues training.")
+        "gives the same result as an uninterrupted run; a larger --iters continues training "
+        "(see --average-last).")
     p.add_argument("survey", help="survey file (canonical .h5 or any format `shsas convert` reads)")
     p.add_argument("--method", choices=["shsas", "reed"], default="shsas",
                    help="shsas: spherical-harmonic field of degree --sh-degree; reed: isotropic (L=0)")
@@ -49,6 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr", type=float, default=LR, help="Adam learning rate")
     p.add_argument("--lr-final", type=float, default=None,
                    help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
+    p.add_argument("--average-last", type=_fraction_or_none, default=AVERAGE_LAST, metavar="FRACTION",
+                   help=f"the field written is the uniform average of its weights over this last fraction "
+                   f"of the iterations (default {AVERAGE_LAST}); 'none': the last iterate. A resumed run "
+                   "may extend --iters only while its average has not begun at the checkpoint")
     p.add_argument("--seed", type=int, default=SEED, help="seed of every random draw")
     p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints")
     p.add_argument("--encoding", choices=sorted(typing.get_args(EncodingName)), default=None,
@@ -61,6 +67,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "deconvolved if stored, else wiener")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
+
+
+def _fraction_or_none(text: str) -> float | None:
+    """``--average-last``'s value: ``none`` or a number (TrainConfig checks its bounds)."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a fraction in (0, 1] or 'none', got {text!r}") from None
 
 
 def _signals(survey, kind: str, device: str) -> tuple[np.ndarray, str]:
@@ -102,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     preset = args.encoding or ("paper_gpu" if device.type == "cuda" else "cpu")
     try:
         fcfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), scene_box=survey.meta.scene_box)
-        tcfg = TrainConfig(iters=args.iters, lr=args.lr, lr_final=args.lr_final, num_bins=args.bins, num_rays=args.rays,
+        tcfg = TrainConfig(iters=args.iters, lr=args.lr, lr_final=args.lr_final,
+                           average_last=args.average_last, num_bins=args.bins, num_rays=args.rays,
                            pings_per_batch=args.pings_per_batch, seed=args.seed,
                            checkpoint_every=args.checkpoint_every, device=str(device),
                            render=RenderConfig(beamwidth_deg=args.beamwidth))

@@ -418,3 +418,41 @@ def test_fit_analytic_signals_are_the_surveys_analytic_samples() -> None:
     cplx = make_survey(complex_=True)
     sig, label = _signals(cplx, "analytic", "cpu")
     assert label == "samples (complex)" and np.array_equal(sig, cplx.samples)
+
+
+def test_tail_average_is_the_mean_of_the_last_iterates_and_resumes_exactly(small, tmp_path):
+    survey, sig = small
+    snapshots: list[list[torch.Tensor]] = []
+    field = _field(survey)
+
+    def record(*_args) -> None:  # called after every optimiser step: the iterate
+        snapshots.append([p.detach().clone() for p in field.parameters()])
+
+    fit(field, survey, sig, _cfg(average_last=0.4), progress=record)
+    assert len(snapshots) == 10
+    expected = [torch.stack(ps).mean(0) for ps in zip(*snapshots[-4:], strict=True)]  # 0.4 x 10 iterates
+    for got, want in zip(field.parameters(), expected, strict=True):
+        assert torch.allclose(got.detach(), want, rtol=1e-5, atol=1e-7)
+    assert any(not torch.allclose(g.detach(), last) for g, last in zip(field.parameters(), snapshots[-1], strict=True))
+
+    # interrupted inside the averaged tail (at 8) and resumed: the same average
+    with pytest.raises(Cancelled):
+        n = iter(range(100))
+        fit(_field(survey), survey, sig, _cfg(average_last=0.4), should_stop=lambda: next(n) >= 8,
+            checkpoint_dir=tmp_path)
+    resumed = _field(survey, seed=5)
+    fit(resumed, survey, sig, _cfg(average_last=0.4), checkpoint_dir=tmp_path)
+    for a, b in zip(resumed.parameters(), field.parameters(), strict=True):
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-7)
+    # extended so that its average would have begun before the checkpoint: refused, naming the fix
+    with pytest.raises(ShsasError, match=r"past iteration 7 .* fix: 17 iterations or more"):
+        fit(_field(survey), survey, sig, _cfg(average_last=0.4, iters=12), checkpoint_dir=tmp_path)
+    # extended far enough: the average starts afresh over the new run's last 40 % (iterates 13-20)
+    snapshots.clear()
+    longer = _field(survey, seed=6)
+    res = fit(longer, survey, sig, _cfg(average_last=0.4, iters=20), checkpoint_dir=tmp_path,
+              progress=lambda *_a: snapshots.append([p.detach().clone() for p in longer.parameters()]))
+    assert res.start_iteration == 10 and len(snapshots) == 10
+    expected = [torch.stack(ps).mean(0) for ps in zip(*snapshots[-8:], strict=True)]
+    for got, want in zip(longer.parameters(), expected, strict=True):
+        assert torch.allclose(got.detach(), want, rtol=1e-5, atol=1e-7)
