@@ -127,6 +127,7 @@ HARD_REGIMES: tuple[str, ...] = ("sparse", "anisotropic")
 #: (result key, column title, format, True when higher is better)
 COLUMNS: tuple[tuple[str, str, str, bool], ...] = (
     ("pc_f1", "pc F1 ↑", "{:.3f}", True),
+    ("fixed_f1", "pc F1 τ=0.2 ↑", "{:.3f}", True),  # the paper's fixed level, beside the rule's
     ("mesh_f1", "mesh F1 ↑", "{:.3f}", True),
     ("pc_chamfer_l2", "Chamfer-L2 m² ↓", "{:.2e}", False),
     ("pc_fscore", "F@5mm ↑", "{:.3f}", True),
