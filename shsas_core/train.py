@@ -501,7 +501,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
         fp["psf"] = [[float(v.real), float(v.imag)] for v in k]
 
     avg = _tail_average(field, cfg)
-    avg_from = cfg.iters - _averaged_iterations(cfg)  # the iterates after this many steps are averaged
+    avg_from = _average_start(cfg)
     ckpt_path = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
     loss_hist: list[float] = []
     data_hist: list[float] = []
@@ -625,9 +625,12 @@ def evaluate_data_loss(field: torch.nn.Module, survey, signals: np.ndarray, ping
     return float((p * np.abs(amplitude * pred - s) ** 2).sum()) / den
 
 
-def _averaged_iterations(cfg: TrainConfig) -> int:
-    """How many of the last iterates the tail average takes (at least one)."""
-    return max(1, round(float(cfg.average_last or 0.0) * cfg.iters))
+def _average_start(cfg: TrainConfig) -> int:
+    """The steps after which the iterates are averaged (the last ``average_last`` of them, at
+    least one; ``iters`` when nothing is averaged)."""
+    if cfg.average_last is None:
+        return cfg.iters
+    return cfg.iters - max(1, round(cfg.average_last * cfg.iters))
 
 
 def _tail_average(field: torch.nn.Module, cfg: TrainConfig) -> torch.nn.Module | None:
@@ -647,7 +650,8 @@ def _resume_average(avg: torch.nn.Module, ck: dict[str, Any], avg_from: int, cfg
     if ck.get("average_from") == avg_from and ck.get("average") is not None:
         avg.load_state_dict(ck["average"])
     elif start > avg_from:
-        frac = float(cfg.average_last or 1.0)
+        frac = cfg.average_last
+        assert frac is not None  # there is an average to resume
         fix = (f"{math.ceil(start / (1 - frac))} iterations or more" if frac < 1 else "a new output directory")
         raise ShsasError(f"fit: checkpoint {path} is at iteration {start}, past iteration {avg_from} "
                          f"where this run's weight average begins (average_last {frac:g} of "

@@ -14,6 +14,7 @@ from ..atomic import atomic_path
 from ..errors import ShsasError
 from ..options import (
     AVERAGE_LAST,
+    AVERAGE_LAST_HELP,
     DEVICE,
     ITERS,
     LR,
@@ -52,9 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lr-final", type=float, default=None,
                    help="learning rate at the last iteration, decayed exponentially from --lr (default: constant lr)")
     p.add_argument("--average-last", type=_fraction_or_none, default=AVERAGE_LAST, metavar="FRACTION",
-                   help=f"the field written is the uniform average of its weights over this last fraction "
-                   f"of the iterations (default {AVERAGE_LAST}); 'none': the last iterate. A resumed run "
-                   "may extend --iters only while its average has not begun at the checkpoint")
+                   help=f"{AVERAGE_LAST_HELP} (default {AVERAGE_LAST}; 'none' = None). A resumed run may "
+                   "extend --iters only while its average has not begun at the checkpoint")
     p.add_argument("--seed", type=int, default=SEED, help="seed of every random draw")
     p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints")
     p.add_argument("--encoding", choices=sorted(typing.get_args(EncodingName)), default=None,
