@@ -100,7 +100,7 @@ class ReconstructionSpec(BaseModel):
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
     target: Target = Field(TARGET, description=TARGET_HELP)
     encoding: EncodingName = Field(
-        "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^15 rows), "
+        "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^17 rows), "
         "small (8 levels, 2^13 rows, finest 128: fastest, for short CPU runs), paper_gpu (the paper's)")
 
     def grid_count(self, box: SceneBox) -> int:

@@ -56,7 +56,7 @@ class HashEncodingConfig(BaseModel):
 
     n_levels: int = Field(12, ge=1, le=32, description="number of resolution levels")
     n_features: int = Field(2, ge=1, le=8, description="features per level")
-    log2_table_size: int = Field(15, ge=4, le=24, description="log2 of the table rows per level")
+    log2_table_size: int = Field(17, ge=4, le=24, description="log2 of the table rows per level")
     base_resolution: int = Field(16, ge=2, le=1 << 16, description="coarsest grid resolution N_min")
     finest_resolution: int = Field(512, ge=2, le=1 << 16, description="finest grid resolution N_max")
     init_scale: float = Field(1e-4, gt=0, le=1.0, description="table init: uniform(-s, s)")
@@ -86,7 +86,10 @@ class HashEncodingConfig(BaseModel):
 PAPER_GPU_ENCODING = HashEncodingConfig(
     n_levels=16, n_features=2, log2_table_size=19, base_resolution=16, finest_resolution=4096
 )
-#: CPU default: 12 levels x 2 features, N_min 16, N_max 512, 2^15 rows per level (~0.7 M params).
+#: CPU default: 12 levels x 2 features, N_min 16, N_max 512, 2^17 rows per level (~2.3 M params).
+#: 2^15 rows gave the nine hashed levels 6-4,100x more vertices than rows; their collision noise cost
+#: the neural methods 0.02-0.06 point-cloud F1 per scene, and 2^19 was slower for no more
+#: (docs/neural.md, "Hash-table size").
 CPU_ENCODING = HashEncodingConfig()
 
 #: Small (CPU, short runs): 8 levels, N_min 8, N_max 128, 2^13 rows per level; the setting the
