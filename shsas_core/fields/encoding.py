@@ -87,9 +87,8 @@ PAPER_GPU_ENCODING = HashEncodingConfig(
     n_levels=16, n_features=2, log2_table_size=19, base_resolution=16, finest_resolution=4096
 )
 #: CPU default: 12 levels x 2 features, N_min 16, N_max 512, 2^17 rows per level (~2.3 M params).
-#: 2^15 rows gave the nine hashed levels 6-4,100x more vertices than rows; their collision noise cost
-#: the neural methods 0.02-0.06 point-cloud F1 per scene, and 2^19 was slower for no more
-#: (docs/neural.md, "Hash-table size").
+#: Not 2^15: its hashed levels held 6-4,100x more vertices than rows, and the collision speckle
+#: cost the neural methods fidelity; not 2^19: slower for no more (docs/neural.md, "Hash-table size").
 CPU_ENCODING = HashEncodingConfig()
 
 #: Small (CPU, short runs): 8 levels, N_min 8, N_max 128, 2^13 rows per level; the setting the
