@@ -73,8 +73,8 @@ def test_distill_reproduces_a_complex_image() -> None:
 @pytest.mark.xfail(strict=False, reason="known gap (issue 12): with 2^15-row hash tables the default "
                    "fit ended slightly below its start on this sphere (F1 0.1811 -> 0.1775 on a 2-core "
                    "AMD EPYC; 0.1815 -> 0.1723 on an Intel Xeon with the averaged weights); with 2^17 "
-                   "rows it passes on the Intel Xeon (0.1696 -> 0.1747) and is not yet measured on an "
-                   "EPYC, so it stays marked until it passes on both")
+                   "rows it passes on the Intel Xeon (0.1696 -> 0.1747) but not on the AMD EPYC (0.1866 "
+                   "-> 0.1848), so it stays marked until it passes on both")
 def test_fit_from_backprojection_scores_no_worse_than_its_start() -> None:
     """The issue's guarantee on a tiny scene: a short fit at the job spec's defaults (point-spread
     forward model, occupancy grid and sparsity prior from the same image), started from the
