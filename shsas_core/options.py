@@ -44,6 +44,15 @@ AVERAGE_LAST_HELP = ("the neural field returned is the uniform average of its we
                      "fraction of the training iterations (tail averaging), which removes the "
                      "iterate-to-iterate jitter of one-ping batches; None: the last iterate (the paper)")
 
+#: Samples along each TX ray whose field gradients make the Lambertian term's normal (docs/neural.md,
+#: "The Lambertian normal on a thin shell").
+NormalWindow = Annotated[int, Field(ge=1, le=16)]
+NORMAL_WINDOW = 1
+NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "
+                      "samples along its TX ray, ending at the sample (bins of one range window, so meant for "
+                      "forward psf); 1: the sample's own gradient (the paper). A thin shell's own gradient "
+                      "vanishes on its ridge, which leaves the ridge dark and the fit builds a double sheet")
+
 Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
 SEED = 0
 

@@ -499,12 +499,14 @@ def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tup
 def train_config(spec: ReconstructionSpec) -> Any:
     """The trainer's config from the job spec. Every key is a TrainConfig field: a name that is
     not (a renamed field, say) fails here instead of being dropped."""
+    from .render import RenderConfig
     from .train import LossWeights, TrainConfig
 
     return TrainConfig(
         iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
         lr_final=spec.lr_final, average_last=spec.average_last, target=spec.target, pings_per_batch=spec.pings_per_batch,
         device=spec.device, weights=LossWeights(sparsity=spec.sparsity),
+        render=RenderConfig(normal_window=spec.normal_window),
         # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
         checkpoint_every=max(10, min(500, spec.iters // 10)))
 
@@ -513,7 +515,7 @@ def _render(field: Any, survey: Survey, pings: np.ndarray, spec: ReconstructionS
             device: Any) -> np.ndarray:
     from .render import RenderConfig, render_transients
 
-    cfg = RenderConfig(num_rays=min(spec.num_rays, MAX_SCORING_RAYS))
+    cfg = RenderConfig(num_rays=min(spec.num_rays, MAX_SCORING_RAYS), normal_window=spec.normal_window)
     return render_transients(field, survey, pings, cfg, amplitude=amplitude, device=device, seed=spec.seed)
 
 

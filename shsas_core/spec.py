@@ -19,6 +19,8 @@ from .options import (
     ITERS,
     LR,
     LR_FINAL_HELP,
+    NORMAL_WINDOW,
+    NORMAL_WINDOW_HELP,
     NUM_BINS,
     NUM_RAYS,
     PINGS_PER_BATCH,
@@ -33,6 +35,7 @@ from .options import (
     GridCount,
     Iters,
     LearningRate,
+    NormalWindow,
     NumBins,
     NumRays,
     PingsPerBatch,
@@ -96,6 +99,7 @@ class ReconstructionSpec(BaseModel):
         "density (the paper's L_sparse): it removes the low background the data term leaves in "
         "empty space, which otherwise lowers the extraction level (docs/neural.md); 0: off, as in "
         "the paper's simulated setting")
+    normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
     target: Target = Field(TARGET, description=TARGET_HELP)

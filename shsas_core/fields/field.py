@@ -287,7 +287,8 @@ class SHField(torch.nn.Module):
 
         Returns:
             dict with ``density`` (P,) real >= 0, ``scattering`` (P,) complex, ``dc`` (P,)
-            complex σ_DC = c_00/√(4π), and ``normals`` (P, 3) when ``with_normals``.
+            complex σ_DC = c_00/√(4π), and when ``with_normals`` ``normals`` (P, 3) and
+            ``gradient`` (P, 3) ∇|σ_DC| in 1/m² (world frame; the normal is its negative, normalised).
         """
         self._check_points(dirs, "dirs")
         if create_graph is None:
@@ -309,6 +310,7 @@ class SHField(torch.nn.Module):
                 g = torch.zeros_like(x)
         n = -safe_normalize(g)
         out["normals"] = n if create_graph else n.detach()
+        out["gradient"] = g if create_graph else g.detach()
         if not torch.is_grad_enabled():
             out = {k: v.detach() for k, v in out.items()}
         return out
@@ -338,4 +340,5 @@ class SHField(torch.nn.Module):
         g = (jac * v).sum(-1).t() / self.box_size.to(jac.dtype) * (inside * INV_SQRT_4PI)[:, None]
         n = -safe_normalize(g)
         res["normals"] = n if create_graph else n.detach()
+        res["gradient"] = g if create_graph else g.detach()
         return res

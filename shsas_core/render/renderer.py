@@ -7,7 +7,9 @@ For ping ``n`` with TX ``o_T`` and RX ``o_R`` and a range bin of two-way path ``
 * ``x_km``: where TX ray ``m`` meets the ellipsoid of bin ``k`` (:mod:`.geometry`);
 * ``omega_km``: unit direction from the receiver to ``x_km`` (the SH look direction);
 * ``T_km^2``: two-way transmittance (:mod:`.transmittance`), ``T(x, o_R) ≈ T(o_T, x)``;
-* ``g_km = max(0, n(x) . (o_T - x)/|o_T - x|)``: Lambertian term with the field's normals;
+* ``g_km = max(0, n_km . (o_T - x)/|o_T - x|)``: Lambertian term; ``n_km`` is the field's normal
+  at ``x_km``, or with ``normal_window = W > 1`` the normalised negative sum of the field's
+  gradients at samples ``k-W+1 .. k`` of the same ray (:func:`windowed_normals`);
 * ``w_km``: quadrature weight. ``weighting="solid_angle"`` (default): ``(Omega / M) R_T / (R_R
   cos psi)`` — the rays are uniform in TX solid angle, each standing for ``Omega / M``
   steradians; the factor turns that into ellipsoid area with the point-scatterer spreading
@@ -31,8 +33,19 @@ from torch import Tensor
 
 from ..errors import ShsasError
 from ..fields.base import device_dtype
+from ..fields.field import safe_normalize
 from ..heap import heap_cache
-from ..options import NUM_BINS, NUM_RAYS, UNIFORM_FRACTION, NumBins, NumRays, UniformFraction
+from ..options import (
+    NORMAL_WINDOW,
+    NORMAL_WINDOW_HELP,
+    NUM_BINS,
+    NUM_RAYS,
+    UNIFORM_FRACTION,
+    NormalWindow,
+    NumBins,
+    NumRays,
+    UniformFraction,
+)
 from ..survey import sample_times
 from .geometry import area_jacobian, intersect_focal, intersect_quadric, points_on_rays
 from .sampling import beam_axes, bin_radii, cone_directions, cone_half_angles, scene_range_window
@@ -52,6 +65,7 @@ class RenderConfig(BaseModel):
                                         description="full TX cone angle; None: meta.tx_beamwidth_deg, "
                                         "else a cone covering the scene box")
     lambertian: bool = Field(True, description="multiply by max(0, n . to_tx) (needs normals)")
+    normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
     two_way_transmittance: bool = Field(True, description="T^2 (return leg ≈ transmit leg) instead of T")
     weighting: Literal["solid_angle", "sum"] = "solid_angle"
     backend: Literal["fast", "reference"] = Field(
@@ -118,7 +132,7 @@ def render_samples(field: torch.nn.Module, geom: PingGeometry, radii: Tensor, di
     Returns:
         dict with ``signal`` (B, K) complex predicted samples, and per sample (B, K, M):
         ``x`` (…,3), ``valid``, ``density``, ``scattering``, ``transmittance``, ``lambertian``,
-        ``weight``.
+        ``weight``, and with ``cfg.normal_window > 1`` the field's ``gradient`` (B, K, M, 3).
     """
     b, k = radii.shape
     m = dirs.shape[1]
@@ -132,12 +146,14 @@ def render_samples(field: torch.nn.Module, geom: PingGeometry, radii: Tensor, di
     density = out["density"].reshape(b, k, m) * vf
     sigma = out["scattering"].reshape(b, k, m)
     trans = (transmittance if fast else transmittance_cumprod)(density, s["l"], cfg.two_way_transmittance)
-    if cfg.lambertian:
-        n = out["normals"].reshape(b, k, m, 3)
-        g = -(n * dirs[:, None, :, :]).sum(-1)  # (o_T - x)/|o_T - x| = -u
-        g = g.clamp_min(0.0)
-    else:
+    gradient = None
+    if not cfg.lambertian:
         g = torch.ones_like(density)
+    elif cfg.normal_window > 1:
+        gradient = out["gradient"].reshape(b, k, m, 3) * vf[..., None]
+        g = lambertian_term(windowed_normals(gradient, cfg.normal_window), dirs)
+    else:
+        g = lambertian_term(out["normals"].reshape(b, k, m, 3), dirs)
     if cfg.weighting == "solid_angle":
         w = (solid_angle / m)[:, None, None] * area_jacobian(geom.tx, geom.rx, x, dirs)
     else:
@@ -145,8 +161,42 @@ def render_samples(field: torch.nn.Module, geom: PingGeometry, radii: Tensor, di
     w = w * vf
     contrib = sigma * (w * trans * g).to(sigma.dtype)
     signal = contrib.sum(dim=-1) * amplitude
-    return {"signal": signal, "x": x, "valid": valid, "density": density, "scattering": sigma,
-            "transmittance": trans, "lambertian": g, "weight": w}
+    res = {"signal": signal, "x": x, "valid": valid, "density": density, "scattering": sigma,
+           "transmittance": trans, "lambertian": g, "weight": w}
+    if gradient is not None:
+        res["gradient"] = gradient
+    return res
+
+
+def windowed_normals(gradient: Tensor, window: int) -> Tensor:
+    """Normals from field gradients summed along each ray over ``window`` samples.
+
+    ``n_k = -normalize(Σ_{j=k-W+1..k} ∇_j)`` (``j >= 0``). Along a ray the sum's component on the
+    ray is the density's rise over the window (a finite difference on a longer baseline). On a thin
+    shell the sample's own gradient vanishes at the ridge and points back at the sonar past it, so
+    with ``window = 1`` (the field's normals, ``-normalize(∇_k)``) only the near flank faces the
+    sonar; with a window the part facing it reaches half a window past the ridge, centred on it.
+
+    Args:
+        gradient: (B, K, M, 3) ∇|σ_DC| at the samples, 1/m², bins ascending along each ray (0 at
+            invalid samples). window: W >= 1 samples.
+
+    Returns:
+        (B, K, M, 3) unit normals (0 where the sum is 0).
+    """
+    if window < 1:
+        raise ShsasError(f"windowed_normals: window must be >= 1, got {window}")
+    total = torch.cumsum(gradient, dim=1)
+    if window < gradient.shape[1]:
+        before = torch.cat([torch.zeros_like(total[:, :window]), total[:, :-window]], dim=1)
+        total = total - before
+    return -safe_normalize(total)
+
+
+def lambertian_term(normals: Tensor, dirs: Tensor) -> Tensor:
+    """``g = max(0, n . (o_T - x)/|o_T - x|)``: normals (B, K, M, 3) unit, dirs (B, M, 3) unit TX
+    rays -> (B, K, M)."""
+    return (-(normals * dirs[:, None, :, :]).sum(-1)).clamp_min(0.0)  # (o_T - x)/|o_T - x| = -u
 
 
 def render_pings(field: torch.nn.Module, geom: PingGeometry, radii: Tensor, cfg: RenderConfig,
@@ -221,17 +271,21 @@ def _render_rows(field: torch.nn.Module, survey, idx: np.ndarray, radii_all: np.
         dirs, omega = cone_directions(geom.axis, geom.half_angle, cfg.num_rays, gen, jitter=True)
         radii = torch.as_tensor(radii_all[row, keep], dtype=dtype, device=device)[None, :]
         # evaluate the field chunk by chunk, then transmittance over the whole ray at once
+        # a window of normals reaches back across chunks: it is applied to the whole ray below
+        windowed = cfg.lambertian and cfg.normal_window > 1
         parts: dict[str, list[Tensor]] = {"density": [], "scattering": [], "lambertian": [],
-                                          "weight": [], "l": []}
+                                          "weight": [], "l": [], "gradient": []}
         for c0 in range(0, radii.shape[1], bins_per_chunk):
             rc = radii[:, c0:c0 + bins_per_chunk]
             with torch.enable_grad():  # normals need autograd even when nothing is trained
                 r = render_samples(field, geom, rc, dirs, omega, cfg, 1.0, create_graph=False)
             s = sample_ellipsoids(geom, rc, dirs, fast=cfg.backend == "fast")
-            for key in ("density", "scattering", "lambertian", "weight"):
+            for key in ("density", "scattering", "lambertian", "weight") + (("gradient",) if windowed else ()):
                 parts[key].append(r[key].detach())
             parts["l"].append(s["l"])
-        cat = {k: torch.cat(v, dim=1) for k, v in parts.items()}
+        cat = {k: torch.cat(v, dim=1) for k, v in parts.items() if v}
+        if windowed:
+            cat["lambertian"] = lambertian_term(windowed_normals(cat["gradient"], cfg.normal_window), dirs)
         trans = transmittance(cat["density"], cat["l"], cfg.two_way_transmittance)
         sig = (cat["scattering"] * (cat["weight"] * trans * cat["lambertian"]).to(cat["scattering"].dtype)).sum(-1)
         out[row, keep] = sig[0].cpu().numpy().astype(np.complex64)

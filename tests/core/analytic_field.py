@@ -45,6 +45,7 @@ class ShellField(torch.nn.Module):
                 (g,) = torch.autograd.grad(mag.sum(), xg, create_graph=create_graph, retain_graph=True)
                 n = -g / g.norm(dim=-1, keepdim=True).clamp_min(1e-30)
                 out["normals"] = n if create_graph else n.detach()
+                out["gradient"] = g if create_graph else g.detach()
         if not torch.is_grad_enabled():
             out = {k: v.detach() for k, v in out.items()}
         return out

@@ -68,13 +68,18 @@ def test_outputs_follow_the_formulas() -> None:
     torch.testing.assert_close(out["density"], field.density(x))
     torch.testing.assert_close(out["normals"], field.normals(x))
     assert "normals" not in field(x, d, with_normals=False)
+    # the gradient the normal is made of: ∇|σ_DC| by autograd of the density (ζ divided out)
+    xg = x.clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(field.density(xg).sum() / 2.5, xg)
+    torch.testing.assert_close(out["gradient"], grad)
+    torch.testing.assert_close(out["normals"], -torch.nn.functional.normalize(grad, dim=1))
 
 
 def test_fast_matches_eager_values_and_parameter_grads() -> None:
     eager, fast = _pair(3)
     x, d = _inside(300), _dirs(300)
     a, b = eager(x, d), fast(x, d)
-    for k in ("density", "dc", "scattering", "normals"):
+    for k in ("density", "dc", "scattering", "normals", "gradient"):
         torch.testing.assert_close(b[k], a[k], rtol=0, atol=1e-10)
     torch.testing.assert_close(fast.normals(x), eager.normals(x), rtol=0, atol=1e-10)
     ga = torch.autograd.grad(_loss(a), list(eager.parameters()))
