@@ -51,7 +51,9 @@ NORMAL_WINDOW = 1
 NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "
                       "samples along its TX ray, ending at the sample (bins of one range window, so meant for "
                       "forward psf); 1: the sample's own gradient (the paper). A thin shell's own gradient "
-                      "vanishes on its ridge, which leaves the ridge dark and the fit builds a double sheet")
+                      "vanishes at its ridge and points back at the sonar past it, so only the near flank "
+                      "is lit and the fit builds a double sheet; 3-5 give one sharper sheet but a lower "
+                      "point-cloud F1 on solid scenes (docs/neural.md)")
 
 Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
 SEED = 0

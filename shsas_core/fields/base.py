@@ -1,8 +1,8 @@
 """What the renderer, the trainer and the extraction need of a neural scattering field (issue 14).
 
-:class:`ScatteringField` is that interface: ``forward`` (density, scattering, normals), the
-field's ``config``, the ``device`` and ``dtype`` its parameters live on, and
-``set_active_degree`` (progressive SH training). :class:`~shsas_core.fields.SHField` and
+:class:`ScatteringField` is that interface: ``forward`` (density, scattering, normals and the
+gradient they come from), the field's ``config``, the ``device`` and ``dtype`` its parameters
+live on, and ``set_active_degree`` (progressive SH training). :class:`~shsas_core.fields.SHField` and
 :class:`~shsas_core.fields.occupancy.MaskedField` implement it, so train no longer reaches into
 the field's layers or hangs private attributes on it.
 
