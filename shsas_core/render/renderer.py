@@ -263,6 +263,9 @@ def _render_rows(field: torch.nn.Module, survey, idx: np.ndarray, radii_all: np.
                  r_hi: np.ndarray, cfg: RenderConfig, device, dtype: torch.dtype, gen: torch.Generator,
                  bins_per_chunk: int, out: np.ndarray) -> None:
     """The per-ping loop of :func:`render_transients`: fills ``out`` (len(idx), T) in place, A = 1."""
+    # a window of normals reaches back across chunks: it is applied to the whole ray below
+    windowed = cfg.lambertian and cfg.normal_window > 1
+    keys = ("density", "scattering", "lambertian", "weight") + (("gradient",) if windowed else ())
     for row, n in enumerate(idx):
         geom = ping_geometry(survey, [n], device, dtype, cfg.beamwidth_deg)
         keep = np.nonzero((radii_all[row] >= r_lo[row]) & (radii_all[row] <= r_hi[row]))[0]
@@ -271,19 +274,16 @@ def _render_rows(field: torch.nn.Module, survey, idx: np.ndarray, radii_all: np.
         dirs, omega = cone_directions(geom.axis, geom.half_angle, cfg.num_rays, gen, jitter=True)
         radii = torch.as_tensor(radii_all[row, keep], dtype=dtype, device=device)[None, :]
         # evaluate the field chunk by chunk, then transmittance over the whole ray at once
-        # a window of normals reaches back across chunks: it is applied to the whole ray below
-        windowed = cfg.lambertian and cfg.normal_window > 1
-        parts: dict[str, list[Tensor]] = {"density": [], "scattering": [], "lambertian": [],
-                                          "weight": [], "l": [], "gradient": []}
+        parts: dict[str, list[Tensor]] = {key: [] for key in (*keys, "l")}
         for c0 in range(0, radii.shape[1], bins_per_chunk):
             rc = radii[:, c0:c0 + bins_per_chunk]
             with torch.enable_grad():  # normals need autograd even when nothing is trained
                 r = render_samples(field, geom, rc, dirs, omega, cfg, 1.0, create_graph=False)
             s = sample_ellipsoids(geom, rc, dirs, fast=cfg.backend == "fast")
-            for key in ("density", "scattering", "lambertian", "weight") + (("gradient",) if windowed else ()):
+            for key in keys:
                 parts[key].append(r[key].detach())
             parts["l"].append(s["l"])
-        cat = {k: torch.cat(v, dim=1) for k, v in parts.items() if v}
+        cat = {k: torch.cat(v, dim=1) for k, v in parts.items()}
         if windowed:
             cat["lambertian"] = lambertian_term(windowed_normals(cat["gradient"], cfg.normal_window), dirs)
         trans = transmittance(cat["density"], cat["l"], cfg.two_way_transmittance)
