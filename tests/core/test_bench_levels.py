@@ -1,0 +1,70 @@
+"""benchmarks/bench_levels.py: its decibel Otsu rule against a brute-force between-class-variance
+search, and its re-scoring against the pipeline's own point cloud at the same τ."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_levels.py"
+
+
+@pytest.fixture(scope="module")
+def levels():
+    sys.path.insert(0, str(BENCH.parent))
+    spec = importlib.util.spec_from_file_location("bench_levels", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["bench_levels"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def brute_otsu(x: np.ndarray, candidates: np.ndarray) -> float:
+    """The candidate level maximising w0 w1 (mu0 - mu1)^2 over the raw values (no histogram)."""
+    best, best_t = -1.0, float(candidates[0])
+    for t in candidates:
+        lo, hi = x[x < t], x[x >= t]
+        if len(lo) == 0 or len(hi) == 0:
+            continue
+        v = len(lo) * len(hi) * (lo.mean() - hi.mean()) ** 2
+        if v > best:
+            best, best_t = v, float(t)
+    return best_t
+
+
+def test_otsu_db_matches_a_brute_force_search_on_the_decibel_scale(levels) -> None:
+    rng = np.random.default_rng(3)
+    norm = np.concatenate([rng.uniform(1e-4, 3e-3, 5000), rng.uniform(0.02, 0.1, 800), rng.uniform(0.5, 1, 400)])
+    db = 20 * np.log10(np.maximum(norm, 10 ** (levels.DB_FLOOR / 20)))
+    ref_db = brute_otsu(db, np.linspace(db.min(), db.max(), 2001)[1:])
+    got_db = 20 * np.log10(levels.otsu_db(norm))
+    bin_width = (db.max() - db.min()) / 256  # skimage's histogram
+    assert abs(got_db - ref_db) <= 1.5 * bin_width
+
+
+def test_rescore_scores_the_same_cloud_as_the_pipeline_at_each_tau(levels) -> None:
+    import trimesh
+
+    from shsas_core.extract import point_cloud
+    from shsas_core.metrics import GroundTruth, score_points
+    from shsas_core.survey import SceneBox
+    from shsas_core.volume import Grid, Volume
+
+    box = SceneBox(min=(-0.05, -0.05, -0.05), max=(0.05, 0.05, 0.05))
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    gt = GroundTruth(mesh.vertices, mesh.faces, box)
+    grid = Grid(box_min=box.min, box_max=box.max, shape=(24, 24, 24))
+    r = np.linalg.norm(grid.points(), axis=1).reshape(grid.shape)
+    # a Gaussian shell on the sphere plus a dim offset shell, so the rules pick different τ
+    shell = np.exp(-((r - 0.03) / 0.004) ** 2) + 0.08 * np.exp(-((r - 0.04) / 0.003) ** 2)
+    vol = Volume(grid, shell.astype(np.float32))
+    out = levels.rescore(vol, gt)
+    assert set(out) == set(levels.RULES)
+    for name, s in out.items():
+        want = score_points(point_cloud(vol, s["tau"]).points, gt)
+        assert s["f1"] == pytest.approx(want["f1"]) and s["chamfer_l2"] == pytest.approx(want["chamfer_l2"]), name
+    assert out["paper"]["tau"] == pytest.approx(0.2) and out["fixed0.1"]["tau"] == pytest.approx(0.1)
