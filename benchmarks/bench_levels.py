@@ -38,6 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_fidelity as fid
 
 from shsas_core.extract import PAPER_TAU, choose_threshold, normalize, otsu_threshold
+from shsas_core.metrics import GroundTruth
 from shsas_core.volume import Grid, Volume
 
 #: Floor of the decibel scale for ``otsu_db`` (dB below the peak); lower magnitudes count as it.
@@ -78,7 +79,7 @@ def load_volume(folder: Path, method: str) -> Volume:
     return Volume(grid, np.load(folder / f"{method}_volume.npy"), meta.get("name", ""))
 
 
-def rescore(volume: Volume, gt: object) -> dict[str, dict[str, float]]:
+def rescore(volume: Volume, gt: GroundTruth) -> dict[str, dict[str, float]]:
     """Per rule: τ (clipped into (0, 1) as ``point_cloud`` requires) and the cloud's scores."""
     from shsas_core.extract import point_cloud
     from shsas_core.metrics import score_points
@@ -93,7 +94,6 @@ def rescore(volume: Volume, gt: object) -> dict[str, dict[str, float]]:
 
 def main(argv: list[str] | None = None) -> int:
     from shsas_core.io import read_survey
-    from shsas_core.metrics import GroundTruth
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(fid.ROOT / "benchmarks" / "out" / "fidelity"),
