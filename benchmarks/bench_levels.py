@@ -26,7 +26,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -37,9 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_fidelity as fid
 
-from shsas_core.extract import PAPER_TAU, choose_threshold, normalize, otsu_threshold
-from shsas_core.metrics import GroundTruth
-from shsas_core.volume import Grid, Volume
+from shsas_core.export import read_volume_npy
+from shsas_core.extract import PAPER_TAU, choose_threshold, normalize, otsu_threshold, point_cloud
+from shsas_core.metrics import GroundTruth, score_points
+from shsas_core.volume import Volume
 
 #: Floor of the decibel scale for ``otsu_db`` (dB below the peak); lower magnitudes count as it.
 DB_FLOOR = -40.0
@@ -72,18 +72,8 @@ RULES: dict[str, Callable[[Volume], float]] = {
 }
 
 
-def load_volume(folder: Path, method: str) -> Volume:
-    """The volume a pipeline run stored as ``<method>_volume.npy`` + ``.json`` (docs/formats.md)."""
-    meta = json.loads((folder / f"{method}_volume.json").read_text())
-    grid = Grid(box_min=tuple(meta["box_min"]), box_max=tuple(meta["box_max"]), shape=tuple(meta["shape"]))
-    return Volume(grid, np.load(folder / f"{method}_volume.npy"), meta.get("name", ""))
-
-
 def rescore(volume: Volume, gt: GroundTruth) -> dict[str, dict[str, float]]:
     """Per rule: τ (clipped into (0, 1) as ``point_cloud`` requires) and the cloud's scores."""
-    from shsas_core.extract import point_cloud
-    from shsas_core.metrics import score_points
-
     out = {}
     for name, rule in RULES.items():
         tau = float(np.clip(rule(volume), 1e-3, 1 - 1e-3))
@@ -119,9 +109,10 @@ def main(argv: list[str] | None = None) -> int:
         gt = GroundTruth.from_survey(read_survey(survey_file))
         cell = f"{rec['regime']}/{rec['scene']}/seed{rec['seed']}"
         for method in rec.get("methods", {}):
-            if not (path.parent / method / f"{method}_volume.npy").is_file():
+            stored = path.parent / method / f"{method}_volume.npy"
+            if not stored.is_file():
                 continue
-            for rule, s in rescore(load_volume(path.parent / method, method), gt).items():
+            for rule, s in rescore(read_volume_npy(stored), gt).items():
                 rows[(cell, method, rule)] = s
                 print(f"{cell:24s} {method:14s} {rule:9s} τ {s['tau']:.3f}  F1 {s['f1']:.3f}  "
                       f"Chamfer {s['chamfer_l2']:.2e}  F@5mm {s['fscore']:.3f}", flush=True)
