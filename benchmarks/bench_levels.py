@@ -18,9 +18,17 @@ Rules (τ on the range-normalised magnitude ``n``, ``extract.normalize``):
 
 The rules other than ``otsu`` and ``paper`` are candidates measured here, not product options.
 
+With ``--hidden-band MM,...`` it also scores the Otsu cloud plus the voxels that lie within that
+depth (mm) of it and that no sonar position can see (:func:`hidden_voxels`): the truncation band a
+TSDF fusion marks as inside behind an observed surface. The occupancy F1 counts the solid object
+(design §5), which a surface-only cloud cannot reach on large convex scenes; this asks whether
+adding the unobservable space behind the surface separates the methods. A candidate, not a
+product option.
+
 Usage::
 
     python benchmarks/bench_levels.py --regimes dense --scenes bunny,armadillo,sphere,cube
+    python benchmarks/bench_levels.py --regimes dense --hidden-band 5,10,20
 """
 
 from __future__ import annotations
@@ -39,7 +47,10 @@ import bench_fidelity as fid
 from shsas_core.export import read_volume_npy
 from shsas_core.extract import PAPER_TAU, choose_threshold, normalize, otsu_threshold, point_cloud
 from shsas_core.metrics import GroundTruth, score_points
-from shsas_core.volume import Volume
+from shsas_core.volume import Grid, Volume
+
+#: Every how many pings a TX position serves as a view for :func:`hidden_voxels` (3,600 -> 515).
+VIEW_STRIDE = 7
 
 #: Floor of the decibel scale for ``otsu_db`` (dB below the peak); lower magnitudes count as it.
 DB_FLOOR = -40.0
@@ -72,6 +83,74 @@ RULES: dict[str, Callable[[Volume], float]] = {
 }
 
 
+def hidden_voxels(mask: np.ndarray, grid: Grid, views: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Which candidate voxels the occupied voxels hide from every view.
+
+    A candidate is seen from a view when no occupied voxel lies in front of it, more than half a
+    voxel nearer, inside its line of sight. Per view the occupied voxels are splatted, with a
+    one-bin margin, into a depth map over gnomonic angular bins one voxel wide at the farthest
+    occupied voxel, so a closed surface cannot leak between its voxels.
+
+    Args:
+        mask: ``grid.shape`` bool, the occupied (surface) voxels.
+        grid: the volume's grid (box and spacing, m).
+        views: (V, 3) sonar positions, m, outside the box.
+        candidates: ``grid.shape`` bool, the voxels to test (not in ``mask``).
+    Returns:
+        ``grid.shape`` bool: the candidates hidden from every view.
+    """
+    lo, h = np.asarray(grid.box_min), np.asarray(grid.spacing)
+    occ_pts = lo + (np.argwhere(mask) + 0.5) * h
+    cand_idx = np.argwhere(candidates & ~mask)
+    cand_pts = lo + (cand_idx + 0.5) * h
+    hidden = np.ones(len(cand_pts), dtype=bool)
+    out = np.zeros(grid.shape, dtype=bool)
+    if len(occ_pts) == 0 or len(cand_pts) == 0:
+        return out
+    centre = (lo + np.asarray(grid.box_max)) / 2
+    for p in np.asarray(views, dtype=np.float64).reshape(-1, 3):
+        e0 = (centre - p) / np.linalg.norm(centre - p)
+        up = np.array([0.0, 0.0, 1.0]) if abs(e0[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+        e1 = np.cross(e0, up)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(e1, e0)
+
+        def project(x: np.ndarray, p=p, e0=e0, e1=e1, e2=e2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            d = x - p
+            z = d @ e0
+            return d @ e1 / z, d @ e2 / z, np.linalg.norm(d, axis=1)
+
+        oa, ob, orng = project(occ_pts)
+        step = float(h.min()) / float(orng.max())
+        ia, ib = np.floor(oa / step).astype(np.int64), np.floor(ob / step).astype(np.int64)
+        a0, b0 = ia.min() - 1, ib.min() - 1
+        na, nb = int(ia.max() - a0 + 2), int(ib.max() - b0 + 2)
+        depth = np.full(na * nb, np.inf)
+        for da in (-1, 0, 1):
+            for db in (-1, 0, 1):
+                np.minimum.at(depth, (ia - a0 + da) * nb + (ib - b0 + db), orng)
+        todo = np.flatnonzero(hidden)
+        ca, cb, crng = project(cand_pts[todo])
+        ja = np.floor(ca / step).astype(np.int64) - a0
+        jb = np.floor(cb / step).astype(np.int64) - b0
+        inside = (ja >= 0) & (ja < na) & (jb >= 0) & (jb < nb)
+        front = np.full(len(todo), np.inf)
+        front[inside] = depth[ja[inside] * nb + jb[inside]]
+        hidden[todo[~(front < crng - 0.5 * float(h.min()))]] = False
+        if not hidden.any():
+            break
+    out[tuple(cand_idx[hidden].T)] = True
+    return out
+
+
+def with_hidden_band(mask: np.ndarray, grid: Grid, views: np.ndarray, depth_m: float) -> np.ndarray:
+    """``mask`` plus the voxels within ``depth_m`` (m) of it that it hides from every view."""
+    from scipy.ndimage import distance_transform_edt
+
+    near = distance_transform_edt(~mask, sampling=np.asarray(grid.spacing)) <= depth_m
+    return mask | hidden_voxels(mask, grid, views, near & ~mask)
+
+
 def rescore(volume: Volume, gt: GroundTruth) -> dict[str, dict[str, float]]:
     """Per rule: τ (clipped into (0, 1) as ``point_cloud`` requires) and the cloud's scores."""
     out = {}
@@ -79,6 +158,21 @@ def rescore(volume: Volume, gt: GroundTruth) -> dict[str, dict[str, float]]:
         tau = float(np.clip(rule(volume), 1e-3, 1 - 1e-3))
         s = score_points(point_cloud(volume, tau).points, gt)
         out[name] = {"tau": tau, "f1": s["f1"], "chamfer_l2": s["chamfer_l2"], "fscore": s["fscore"]}
+    return out
+
+
+def rescore_hidden(volume: Volume, gt: GroundTruth, views: np.ndarray,
+                   depths_mm: list[float]) -> dict[str, dict[str, float]]:
+    """``otsu+hidden<D>mm`` per depth: the Otsu cloud plus its hidden band (:func:`with_hidden_band`)."""
+    tau = float(np.clip(choose_threshold(volume), 1e-3, 1 - 1e-3))
+    mask = normalize(volume) >= tau
+    lo, h = np.asarray(volume.grid.box_min), np.asarray(volume.grid.spacing)
+    out = {}
+    for d in depths_mm:
+        full = with_hidden_band(mask, volume.grid, views, d / 1000.0)
+        s = score_points(lo + (np.argwhere(full) + 0.5) * h, gt)
+        out[f"otsu+hidden{d:g}mm"] = {"tau": tau, "f1": s["f1"], "chamfer_l2": s["chamfer_l2"],
+                                      "fscore": s["fscore"]}
     return out
 
 
@@ -92,7 +186,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--regimes", help="comma list (default: every stored regime)")
     ap.add_argument("--scenes", help="comma list (default: every stored scene)")
     ap.add_argument("--cache-dir", help="simulated-survey cache (as bench_fidelity.py)")
+    ap.add_argument("--hidden-band", metavar="MM,...",
+                    help="also score the Otsu cloud plus its hidden band at these depths, mm (module doc)")
     args = ap.parse_args(argv)
+    try:
+        depths = [float(x) for x in args.hidden_band.split(",")] if args.hidden_band else []
+    except ValueError:
+        ap.error(f"--hidden-band: comma list of depths in mm, got {args.hidden_band!r}")
+    if any(not d > 0 for d in depths):
+        ap.error(f"--hidden-band: depths must be > 0 mm, got {args.hidden_band!r}")
     regimes = fid._names(args.regimes, fid.REGIMES, "regimes")
     scenes = fid._names(args.scenes, fid.SCENES, "scenes")
     cache = fid.cache_dir(args.cache_dir)
@@ -106,13 +208,18 @@ def main(argv: list[str] | None = None) -> int:
         if not survey_file.is_file():
             print(f"skipped {path.parent}: its survey {survey_file} is not in the cache")
             continue
-        gt = GroundTruth.from_survey(read_survey(survey_file))
+        survey = read_survey(survey_file)
+        gt = GroundTruth.from_survey(survey)
         cell = f"{rec['regime']}/{rec['scene']}/seed{rec['seed']}"
         for method in rec.get("methods", {}):
             stored = path.parent / method / f"{method}_volume.npy"
             if not stored.is_file():
                 continue
-            for rule, s in rescore(read_volume_npy(stored), gt).items():
+            volume = read_volume_npy(stored)
+            scores = rescore(volume, gt)
+            if depths:
+                scores |= rescore_hidden(volume, gt, survey.tx[::VIEW_STRIDE], depths)
+            for rule, s in scores.items():
                 rows[(cell, method, rule)] = s
                 print(f"{cell:24s} {method:14s} {rule:9s} τ {s['tau']:.3f}  F1 {s['f1']:.3f}  "
                       f"Chamfer {s['chamfer_l2']:.2e}  F@5mm {s['fscore']:.3f}", flush=True)
@@ -124,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nmean over {len(cells)} cell(s): pc F1 / Chamfer-L2 m² / F@5mm")
     print("| rule | " + " | ".join(fid.LABEL.get(m, m) for m in methods) + " |")
     print("|---|" + "---|" * len(methods))
-    for rule in RULES:
+    for rule in dict.fromkeys(r for _, _, r in rows):
         out = []
         for m in methods:
             sel = [rows[(c, m, rule)] for c in cells if (c, m, rule) in rows]

@@ -68,3 +68,54 @@ def test_rescore_scores_the_same_cloud_as_the_pipeline_at_each_tau(levels) -> No
         want = score_points(point_cloud(vol, s["tau"]).points, gt)
         assert s["f1"] == pytest.approx(want["f1"]) and s["chamfer_l2"] == pytest.approx(want["chamfer_l2"]), name
     assert out["paper"]["tau"] == pytest.approx(0.2) and out["fixed0.1"]["tau"] == pytest.approx(0.1)
+
+
+def _shell_case(open_above: float | None = None):
+    """A 2-voxel-thick spherical shell (radius 12 voxels) on a 40³ grid, and 300 views on a sphere
+    of radius 1 m around it (Fibonacci points). ``open_above``: remove the shell above this
+    height, in radii."""
+    from shsas_core.volume import Grid
+
+    grid = Grid(box_min=(-0.05, -0.05, -0.05), box_max=(0.05, 0.05, 0.05), shape=(40, 40, 40))
+    h = float(grid.spacing[0])
+    x = grid.points().reshape(*grid.shape, 3)
+    r = np.linalg.norm(x, axis=-1)
+    radius = 12 * h
+    shell = np.abs(r - radius) < h
+    if open_above is not None:
+        shell &= x[..., 2] <= open_above * radius
+    k = np.arange(300) + 0.5
+    z = 1 - 2 * k / 300
+    phi = np.pi * (1 + 5**0.5) * k
+    views = np.stack([np.sqrt(1 - z**2) * np.cos(phi), np.sqrt(1 - z**2) * np.sin(phi), z], -1)
+    return grid, r, radius, shell, views, x
+
+
+def test_hidden_voxels_of_a_closed_shell_are_exactly_its_inside(levels) -> None:
+    grid, r, radius, shell, views, _ = _shell_case()
+    hidden = levels.hidden_voxels(shell, grid, views, ~shell)
+    inside = (r < radius) & ~shell
+    assert inside.sum() > 1000
+    np.testing.assert_array_equal(hidden, inside)
+
+
+def test_hidden_voxels_through_an_opening_are_seen(levels) -> None:
+    grid, r, radius, shell, views, x = _shell_case(open_above=0.5)
+    hidden = levels.hidden_voxels(shell, grid, views, ~shell)
+    inside = (r < radius) & ~shell
+    assert not (hidden & ~inside).any()  # never hides the outside
+    centre = tuple(np.unravel_index(np.argmin(r), r.shape))
+    assert not hidden[centre]  # seen from above through the opening
+    assert hidden[inside & (x[..., 2] < -0.7 * radius)].mean() < 1.0
+
+
+def test_hidden_band_stops_at_its_depth(levels) -> None:
+    from scipy.ndimage import distance_transform_edt
+
+    grid, r, radius, shell, views, _ = _shell_case()
+    h = float(grid.spacing[0])
+    band = levels.with_hidden_band(shell, grid, views, 3 * h)
+    dist = distance_transform_edt(~shell, sampling=grid.spacing)
+    want = shell | ((r < radius) & (dist <= 3 * h))
+    np.testing.assert_array_equal(band, want)
+    assert (band & ~shell).sum() > 500
