@@ -55,6 +55,15 @@ NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| s
                       "is lit and the fit builds a double sheet; 3-5 give one sharper sheet but a lower "
                       "point-cloud F1 on solid scenes (docs/neural.md)")
 
+CoarseToFine = Annotated[float, Field(gt=0, le=1)]
+#: Coarse-to-fine hash levels (docs/neural.md, "Coarse-to-fine hash levels"): the fraction of the
+#: training iterations over which the fine levels come in; None: every level from the start.
+COARSE_TO_FINE: float | None = None
+COARSE_TO_FINE_HELP = ("the neural field's hash levels finer than resolution 150 start switched off (the "
+                       "start from backprojection is distilled without them) and come in one after the "
+                       "other, each through a cosine window, over this fraction of the training iterations; "
+                       "None: every level from the start (the paper)")
+
 Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
 SEED = 0
 

@@ -465,7 +465,7 @@ def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tup
 
     from .fields import FieldConfig, SHField, encoding_preset
     from .fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
-    from .train import CHECKPOINT_NAME, fit
+    from .train import CHECKPOINT_NAME, coarse_start_levels, fit
     from .warmstart import WarmStartConfig, distill
 
     spec, survey, should_stop = job.spec, job.survey, job.should_stop
@@ -481,6 +481,8 @@ def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tup
         if spec.occupancy is not None:
             occupancy = OccupancyGrid.from_volume(vol, OccupancyConfig(level=spec.occupancy))
         if spec.init == "backprojection" and not (ckpt / CHECKPOINT_NAME).exists():
+            if spec.coarse_to_fine is not None:  # the start holds only the levels the fit starts with
+                field.set_active_levels(coarse_start_levels(fcfg.encoding))
             distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
                     should_stop=should_stop, stage=f"warm start:{method}")
     cfg = train_config(spec)
@@ -504,7 +506,8 @@ def train_config(spec: ReconstructionSpec) -> Any:
 
     return TrainConfig(
         iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
-        lr_final=spec.lr_final, average_last=spec.average_last, target=spec.target, pings_per_batch=spec.pings_per_batch,
+        lr_final=spec.lr_final, average_last=spec.average_last, coarse_to_fine=spec.coarse_to_fine,
+        target=spec.target, pings_per_batch=spec.pings_per_batch,
         device=spec.device, weights=LossWeights(sparsity=spec.sparsity),
         render=RenderConfig(normal_window=spec.normal_window),
         # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it

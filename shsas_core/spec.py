@@ -15,6 +15,8 @@ from .methods import REGISTRY
 from .options import (
     AVERAGE_LAST,
     AVERAGE_LAST_HELP,
+    COARSE_TO_FINE,
+    COARSE_TO_FINE_HELP,
     DEVICE,
     ITERS,
     LR,
@@ -29,6 +31,7 @@ from .options import (
     TARGET,
     TARGET_HELP,
     AverageLast,
+    CoarseToFine,
     DeviceName,
     EncodingName,
     FinalLearningRate,
@@ -102,6 +105,7 @@ class ReconstructionSpec(BaseModel):
     normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
+    coarse_to_fine: CoarseToFine | None = Field(COARSE_TO_FINE, description=COARSE_TO_FINE_HELP)
     target: Target = Field(TARGET, description=TARGET_HELP)
     encoding: EncodingName = Field(
         "cpu", description="hash-encoding preset of the neural field: cpu (12 levels, 2^17 rows), "
@@ -125,6 +129,6 @@ class ReconstructionSpec(BaseModel):
 PAPER_SETTINGS: dict[str, object] = {
     "init": "none", "forward": "impulse", "target": "coherent", "lr": 1e-3, "encoding": "paper_gpu",
     "num_bins": 200, "num_rays": 4800, "iters": 50_000, "occupancy": None, "sparsity": 0.0,
-    "average_last": None,
+    "average_last": None, "coarse_to_fine": None,
 }
 PRESETS: dict[str, dict[str, object]] = {"default": {}, "paper": PAPER_SETTINGS}

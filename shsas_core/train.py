@@ -61,6 +61,8 @@ from .heap import heap_cache
 from .options import (
     AVERAGE_LAST,
     AVERAGE_LAST_HELP,
+    COARSE_TO_FINE,
+    COARSE_TO_FINE_HELP,
     ITERS,
     LR,
     LR_FINAL_HELP,
@@ -72,6 +74,7 @@ from .options import (
     TARGET_HELP,
     UNIFORM_FRACTION,
     AverageLast,
+    CoarseToFine,
     DeviceName,
     FinalLearningRate,
     Iters,
@@ -146,6 +149,7 @@ class TrainConfig(BaseModel):
                             "contiguous target bins per ping and iteration (replaces num_bins)")
     seed: Seed = SEED
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
+    coarse_to_fine: CoarseToFine | None = Field(COARSE_TO_FINE, description=COARSE_TO_FINE_HELP)
     progressive_sh_every: int | None = Field(
         None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
     checkpoint_every: int = Field(500, ge=1)
@@ -418,11 +422,30 @@ def _atomic_save(obj: Any, path: Path) -> None:
         torch.save(obj, tmp)
 
 
+#: Coarse-to-fine starts with the hash levels of resolution up to this on (8 of the ``cpu``
+#: preset's 12: 16 … 145 cells across the box).
+COARSE_TO_FINE_START_RESOLUTION = 150
+
+
+def coarse_start_levels(encoding: Any) -> int:
+    """Hash levels on at the start of a coarse-to-fine fit: those of resolution up to
+    :data:`COARSE_TO_FINE_START_RESOLUTION` (at least one)."""
+    return max(1, sum(r <= COARSE_TO_FINE_START_RESOLUTION for r in encoding.resolutions()))
+
+
+def active_levels(encoding: Any, fraction: float, it: int, iters: int) -> float:
+    """Active hash levels at iteration ``it`` of a coarse-to-fine fit: from
+    :func:`coarse_start_levels` up to every level, linearly over the first ``fraction * iters``
+    iterations (``SHField.set_active_levels``)."""
+    start, n = coarse_start_levels(encoding), encoding.n_levels
+    return start + (n - start) * min(1.0, it / max(1.0, fraction * iters))
+
+
 def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:
-    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays over
-    them; a weight average is checked by :func:`_resume_average`)."""
+    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays or the
+    levels come in over them; a weight average is checked by :func:`_resume_average`)."""
     c = cfg.model_dump(mode="json")
-    if cfg.lr_final is None:
+    if cfg.lr_final is None and cfg.coarse_to_fine is None:
         c.pop("iters")
     c.pop("checkpoint_every")
     c.pop("heap_cache")
@@ -481,6 +504,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     dtype = device_dtype(field)[1]
     if cfg.progressive_sh_every is not None and not isinstance(field, ScatteringField):
         raise ShsasError("fit: progressive_sh_every needs a ScatteringField (set_active_degree), e.g. SHField")
+    if cfg.coarse_to_fine is not None and not isinstance(field, ScatteringField):
+        raise ShsasError("fit: coarse_to_fine needs a ScatteringField (set_active_levels), e.g. SHField")
     amp_mod = _Amplitude().to(device)
     params = list(field.parameters()) + ([amp_mod.log_amplitude] if cfg.learn_amplitude else [])
     opt = torch.optim.Adam(params, lr=cfg.lr)
@@ -549,6 +574,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 check_stop(should_stop)
                 if cfg.progressive_sh_every is not None:
                     field.set_active_degree(it // cfg.progressive_sh_every)
+                if cfg.coarse_to_fine is not None:
+                    field.set_active_levels(active_levels(field.config.encoding, cfg.coarse_to_fine, it, cfg.iters))
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
@@ -577,6 +604,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
         finally:
             if cfg.progressive_sh_every is not None:
                 field.set_active_degree(None)
+            if cfg.coarse_to_fine is not None:
+                field.set_active_levels(None)
     elapsed_loop = time.perf_counter() - t_loop
     save()
     if avg is not None and it_done > avg_from:  # after save(): a resumed run continues from the iterate

@@ -20,7 +20,8 @@ OPTION_NAMES: dict[str, str] = {"deconvolution": "deconv", "num_bins": "bins", "
 #: Placeholders in the help for the options whose value has a name in the docs.
 _METAVARS: dict[str, str] = {"sh_degree": "L", "threshold": "TAU", "occupancy": "LEVEL",
                              "sparsity": "WEIGHT", "holdout_fraction": "FRACTION",
-                             "average_last": "FRACTION", "normal_window": "SAMPLES"}
+                             "average_last": "FRACTION", "normal_window": "SAMPLES",
+                             "coarse_to_fine": "FRACTION"}
 #: Given for an optional field (``--occupancy none``): the field's None.
 _NONE = "none"
 

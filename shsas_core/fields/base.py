@@ -2,7 +2,8 @@
 
 :class:`ScatteringField` is that interface: ``forward`` (density, scattering, normals and the
 gradient they come from), the field's ``config``, the ``device`` and ``dtype`` its parameters
-live on, and ``set_active_degree`` (progressive SH training). :class:`~shsas_core.fields.SHField` and
+live on, ``set_active_degree`` (progressive SH training) and ``set_active_levels`` (coarse-to-fine
+hash levels). :class:`~shsas_core.fields.SHField` and
 :class:`~shsas_core.fields.occupancy.MaskedField` implement it, so train no longer reaches into
 the field's layers or hangs private attributes on it.
 
@@ -35,6 +36,9 @@ class ScatteringField(Protocol):
 
     def set_active_degree(self, degree: int | None) -> None:
         """Zero the SH coefficients above ``degree`` in every output (None: all active)."""
+
+    def set_active_levels(self, levels: float | None) -> None:
+        """Weight the hash levels for ``levels`` active ones, coarse first (None: all active)."""
 
     def forward(self, x: torch.Tensor, dirs: torch.Tensor, with_normals: bool = True,
                 create_graph: bool | None = None) -> dict[str, torch.Tensor]: ...

@@ -22,6 +22,11 @@ term's answer killed every unit of the second hidden layer. The field was then a
 zero normals and no gradient. That happened on 2 of 3 seeds; with the factor, none of the 3
 collapsed (docs/neural.md). L = 0 is unaffected.
 
+``SHField.set_active_levels(a)`` weights hash level ``l`` by ``(1 - cos(π clamp(a - l, 0, 1))) / 2``
+(BARF's window, Lin et al. 2021): levels below ``a`` count fully, the next one partly, finer ones
+not at all. The trainer moves ``a`` up over the first iterations (``TrainConfig.coarse_to_fine``),
+so the field settles its coarse shape before the fine, more collided levels can add speckle.
+
 ``FieldConfig.backend`` picks the implementation, with identical maths:
 
 * ``reference``: Python-loop encoding; normals by ``torch.autograd.grad`` of
@@ -56,6 +61,13 @@ from .encoding import CPU_ENCODING, Backend, HashEncoding, HashEncodingConfig
 from .sh import num_coefficients, sh_basis
 
 INV_SQRT_4PI = 1.0 / math.sqrt(4.0 * math.pi)
+
+
+def level_window(n_levels: int, n_features: int, active: float) -> torch.Tensor:
+    """Per-feature weights (n_levels * n_features,) of the level-major encoding for ``active``
+    levels (module doc): 1 for levels l <= active - 1, 0 for l >= active, a cosine between."""
+    t = (active - torch.arange(n_levels, dtype=torch.float64)).clamp(0.0, 1.0)
+    return ((1.0 - torch.cos(math.pi * t)) / 2.0).repeat_interleave(n_features)
 
 
 class FieldConfig(BaseModel):
@@ -148,6 +160,7 @@ class SHField(torch.nn.Module):
         self.register_buffer("box_min", torch.tensor(box.min, dtype=torch.float32), persistent=False)
         self.register_buffer("box_size", torch.tensor(box.size, dtype=torch.float32), persistent=False)
         self._degree_hook: torch.utils.hooks.RemovableHandle | None = None
+        self._level_weights: torch.Tensor | None = None
 
     # ----------------------------------------------------------------- ScatteringField
     @property
@@ -179,6 +192,26 @@ class SHField(torch.nn.Module):
             return out * mask.to(out.device, out.dtype)
 
         self._degree_hook = self.linears[-1].register_forward_hook(hook)
+
+    def set_active_levels(self, levels: float | None) -> None:
+        """Coarse-to-fine: weight the hash levels by :func:`level_window` for ``levels`` active
+        levels (None or >= the level count: all at 1, nothing applied)."""
+        enc = self.cfg.encoding
+        if levels is None or levels >= enc.n_levels:
+            self._level_weights = None
+            return
+        self._level_weights = level_window(enc.n_levels, enc.n_features, float(levels))
+
+    def _encode(self, u: torch.Tensor) -> torch.Tensor:
+        h = self.encoding(u)
+        return h if self._level_weights is None else h * self._level_weights.to(h.device, h.dtype)
+
+    def _encode_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        h, jac = self.encoding.forward_with_jacobian(u)
+        if self._level_weights is None:
+            return h, jac
+        w = self._level_weights.to(h.device, h.dtype)
+        return h * w, jac * w
 
     # ----------------------------------------------------------------- internals
     def _check_points(self, x: torch.Tensor, name: str = "x") -> None:
@@ -237,7 +270,7 @@ class SHField(torch.nn.Module):
         """Real and imaginary coefficient parts (P, K) each, zero outside the box."""
         self._check_points(x)
         u, inside = self._unit(x)
-        out = self._mlp(self.encoding(u)) * inside[:, None]
+        out = self._mlp(self._encode(u)) * inside[:, None]
         return out[:, : self.k], out[:, self.k :]
 
     def _dc_abs(self, x: torch.Tensor) -> torch.Tensor:
@@ -329,9 +362,9 @@ class SHField(torch.nn.Module):
         self._check_points(x)
         u, inside = self._unit(x)
         if not with_normals:
-            out = self._mlp(self.encoding.forward(u)) * inside[:, None]
+            out = self._mlp(self._encode(u)) * inside[:, None]
             return self._assemble(out[:, : self.k], out[:, self.k :], dirs)
-        h, jac = self.encoding.forward_with_jacobian(u)  # (P, D), (3, P, D) = d h / d u_a
+        h, jac = self._encode_with_jacobian(u)  # (P, D), (3, P, D) = d h / d u_a
         out, v = self._mlp_with_dc_gradient(h)
         out = out * inside[:, None]
         re, im = out[:, : self.k], out[:, self.k :]

@@ -135,6 +135,9 @@ class MaskedField(torch.nn.Module):
     def set_active_degree(self, degree: int | None) -> None:
         self.field.set_active_degree(degree)
 
+    def set_active_levels(self, levels: float | None) -> None:
+        self.field.set_active_levels(levels)
+
     def coefficients(self, x: torch.Tensor) -> torch.Tensor:
         """Complex SH coefficients (P, (L+1)^2), zero outside the mask."""
         keep = torch.nonzero(self.occupancy.lookup(x), as_tuple=False)[:, 0]

@@ -331,3 +331,42 @@ def test_sh_field_and_masked_field_are_scattering_fields() -> None:
     masked.set_active_degree(None)
     assert field._degree_hook is None
     assert not isinstance(torch.nn.Linear(2, 2), ScatteringField)
+
+
+def test_level_window_is_barfs_cosine_window() -> None:
+    from shsas_core.fields.field import level_window
+
+    w = level_window(4, 2, 2.25)
+    want = [1.0, 1.0, (1 - math.cos(0.25 * math.pi)) / 2, 0.0]
+    torch.testing.assert_close(w, torch.tensor(want, dtype=torch.float64).repeat_interleave(2))
+    assert torch.equal(level_window(4, 1, 4.0), torch.ones(4, dtype=torch.float64))
+    assert torch.equal(level_window(4, 1, 0.0), torch.zeros(4, dtype=torch.float64))
+
+
+@pytest.mark.parametrize("fast", [False, True])
+def test_active_levels_weight_the_encoding_in_every_output(fast: bool) -> None:
+    """With levels switched off, the field equals a brute-force MLP of the encoding with those
+    levels' features scaled, normals included (the fast path scales the Jacobian); None restores
+    it exactly."""
+    from shsas_core.fields.field import level_window
+
+    eager, field = _pair(2)
+    f = field if fast else eager
+    x, d = _inside(60), _dirs(60)
+    full = f(x, d)
+    f.set_active_levels(2.5)
+    part = f(x, d)
+    w = level_window(ENC.n_levels, ENC.n_features, 2.5)
+    ref = f._mlp(f.encoding(f._unit(x)[0]) * w)
+    torch.testing.assert_close(part["dc"].real, ref[:, 0] * (1 / math.sqrt(4 * math.pi)), rtol=0, atol=1e-12)
+    assert not torch.allclose(part["density"], full["density"])
+    # the normal is the gradient of the weighted field: compare with autograd of its density
+    xg = x.clone().requires_grad_(True)
+    (g,) = torch.autograd.grad(f.density(xg).sum(), xg)
+    torch.testing.assert_close(part["normals"], -torch.nn.functional.normalize(g, dim=1), rtol=0, atol=1e-8)
+    f.set_active_levels(None)
+    back = f(x, d)
+    for k in ("density", "scattering", "normals"):
+        assert torch.equal(back[k], full[k]), k
+    f.set_active_levels(float(ENC.n_levels))
+    assert f._level_weights is None

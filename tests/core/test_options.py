@@ -20,7 +20,7 @@ SHARED = {
     "num_bins": (TrainConfig, "num_bins"), "num_rays": (TrainConfig, "num_rays"),
     "pings_per_batch": (TrainConfig, "pings_per_batch"), "seed": (TrainConfig, "seed"),
     "device": (TrainConfig, "device"), "target": (TrainConfig, "target"),
-    "normal_window": (RenderConfig, "normal_window"),
+    "normal_window": (RenderConfig, "normal_window"), "coarse_to_fine": (TrainConfig, "coarse_to_fine"),
 }
 #: LossWeights.sparsity is a plain weight (>= 0, tests use 1000); the spec caps it at 100 for users.
 _BOUND_KEYS = ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "pattern", "enum", "type")
@@ -57,7 +57,8 @@ def test_train_config_passes_every_spec_option():
     from shsas_core.pipeline import train_config
 
     spec = ReconstructionSpec(iters=7, lr=0.5, lr_final=0.01, num_bins=5, num_rays=6, pings_per_batch=2,
-                              seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5)
+                              seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5,
+                              coarse_to_fine=0.25)
     cfg = train_config(spec)
     for field, (model, name) in SHARED.items():
         owner = cfg.render_config() if model is RenderConfig else cfg

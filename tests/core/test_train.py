@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -14,6 +15,7 @@ from shsas_core.render import RenderConfig, render_transients, signal_errors
 from shsas_core.train import (
     LossWeights,
     TrainConfig,
+    coarse_start_levels,
     convolve_psf,
     fit,
     load_checkpoint,
@@ -40,9 +42,10 @@ def small():
     return sphere_survey(n_pings=8, samples=200, n_points=1500)
 
 
-def _field(survey, degree=1, seed=0):
+def _field(survey, degree=1, seed=0, encoding=None):
     torch.manual_seed(seed)
-    return SHField(FieldConfig(sh_degree=degree, encoding=TINY, hidden=16, scene_box=survey.meta.scene_box))
+    return SHField(FieldConfig(sh_degree=degree, encoding=encoding or TINY, hidden=16,
+                               scene_box=survey.meta.scene_box))
 
 
 def _cfg(**kw):
@@ -456,3 +459,47 @@ def test_tail_average_is_the_mean_of_the_last_iterates_and_resumes_exactly(small
     expected = [torch.stack(ps).mean(0) for ps in zip(*snapshots[-8:], strict=True)]
     for got, want in zip(longer.parameters(), expected, strict=True):
         assert torch.allclose(got.detach(), want, rtol=1e-5, atol=1e-7)
+
+
+def test_active_levels_ramp_from_the_coarse_start_to_every_level():
+    from shsas_core.fields.encoding import PRESETS
+    from shsas_core.train import COARSE_TO_FINE_START_RESOLUTION, active_levels
+
+    enc = PRESETS["cpu"]
+    start = sum(r <= COARSE_TO_FINE_START_RESOLUTION for r in enc.resolutions())
+    assert coarse_start_levels(enc) == start == 8
+    a = [active_levels(enc, 0.25, it, 2000) for it in range(0, 2000, 10)]
+    assert a[0] == start and all(x <= y for x, y in itertools.pairwise(a))
+    assert active_levels(enc, 0.25, 250, 2000) == pytest.approx(start + (enc.n_levels - start) / 2)
+    assert active_levels(enc, 0.25, 500, 2000) == enc.n_levels == active_levels(enc, 0.25, 1999, 2000)
+
+
+def test_coarse_to_fine_goes_through_the_field_interface_and_resumes_exactly(small, tmp_path):
+    """fit raises the active levels each iteration through set_active_levels and leaves every
+    level on at the end; an interrupted run resumes to the same field; a field without the
+    interface is refused."""
+    survey, sig = small
+    # two levels at or under the coarse start's resolution, two finer ones
+    enc = HashEncodingConfig(n_levels=4, n_features=2, log2_table_size=8, base_resolution=64, finest_resolution=512)
+    assert coarse_start_levels(enc) == 2
+    f = _field(survey, encoding=enc)
+    seen = []
+    real = f.set_active_levels
+    f.set_active_levels = lambda a: (seen.append(a), real(a))[1]
+    cfg = _cfg(iters=8, coarse_to_fine=0.5)
+    whole = fit(f, survey, sig, cfg)
+    n = f.config.encoding.n_levels
+    assert seen[0] < seen[3] < n and seen[4] == n and seen[-1] is None and f._level_weights is None
+    calls = {"n": 0}
+
+    def stop_after_3() -> bool:
+        calls["n"] += 1
+        return calls["n"] > 3
+
+    with pytest.raises(Cancelled):
+        fit(_field(survey, encoding=enc), survey, sig, cfg, checkpoint_dir=tmp_path, should_stop=stop_after_3)
+    again = fit(_field(survey, seed=99, encoding=enc), survey, sig, cfg, checkpoint_dir=tmp_path)
+    assert again.start_iteration == 3
+    assert np.allclose(again.loss_history, whole.loss_history, rtol=0, atol=1e-6)
+    with pytest.raises(ShsasError, match="coarse_to_fine"):
+        fit(torch.nn.Linear(3, 2), survey, sig, _cfg(iters=1, coarse_to_fine=0.5))
