@@ -58,7 +58,7 @@ NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| s
 CoarseToFine = Annotated[float, Field(gt=0, le=1)]
 #: Coarse-to-fine hash levels (docs/neural.md, "Coarse-to-fine hash levels"): the fraction of the
 #: training iterations over which the fine levels come in; None: every level from the start.
-COARSE_TO_FINE: float | None = None
+COARSE_TO_FINE: float | None = 0.25
 COARSE_TO_FINE_HELP = ("the neural field's hash levels finer than resolution 150 start switched off (the "
                        "start from backprojection is distilled without them) and come in one after the "
                        "other, each through a cosine window, over this fraction of the training iterations; "

@@ -442,10 +442,12 @@ def active_levels(encoding: Any, fraction: float, it: int, iters: int) -> float:
 
 
 def _fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: _Data) -> dict[str, Any]:
-    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays or the
-    levels come in over them; a weight average is checked by :func:`_resume_average`)."""
+    """What must match for a checkpoint to be resumed (iters may grow unless the lr decays over
+    them; a weight average is checked by :func:`_resume_average`). Coarse-to-fine levels follow
+    the resumed run's iters: a finished run extended by resuming is past its ramp and keeps every
+    level on."""
     c = cfg.model_dump(mode="json")
-    if cfg.lr_final is None and cfg.coarse_to_fine is None:
+    if cfg.lr_final is None:
         c.pop("iters")
     c.pop("checkpoint_every")
     c.pop("heap_cache")
@@ -504,8 +506,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     dtype = device_dtype(field)[1]
     if cfg.progressive_sh_every is not None and not isinstance(field, ScatteringField):
         raise ShsasError("fit: progressive_sh_every needs a ScatteringField (set_active_degree), e.g. SHField")
-    if cfg.coarse_to_fine is not None and not isinstance(field, ScatteringField):
-        raise ShsasError("fit: coarse_to_fine needs a ScatteringField (set_active_levels), e.g. SHField")
+    # a plain module (a test or benchmark stand-in) has no hash levels to bring in
+    levels_ramp = cfg.coarse_to_fine if isinstance(field, ScatteringField) else None
     amp_mod = _Amplitude().to(device)
     params = list(field.parameters()) + ([amp_mod.log_amplitude] if cfg.learn_amplitude else [])
     opt = torch.optim.Adam(params, lr=cfg.lr)
@@ -574,8 +576,8 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
                 check_stop(should_stop)
                 if cfg.progressive_sh_every is not None:
                     field.set_active_degree(it // cfg.progressive_sh_every)
-                if cfg.coarse_to_fine is not None:
-                    field.set_active_levels(active_levels(field.config.encoding, cfg.coarse_to_fine, it, cfg.iters))
+                if levels_ramp is not None:
+                    field.set_active_levels(active_levels(field.config.encoding, levels_ramp, it, cfg.iters))
                 if cfg.lr_final is not None:
                     for group in opt.param_groups:
                         group["lr"] = _scheduled_lr(cfg, it)
@@ -604,7 +606,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
         finally:
             if cfg.progressive_sh_every is not None:
                 field.set_active_degree(None)
-            if cfg.coarse_to_fine is not None:
+            if levels_ramp is not None:
                 field.set_active_levels(None)
     elapsed_loop = time.perf_counter() - t_loop
     save()

@@ -476,8 +476,8 @@ def test_active_levels_ramp_from_the_coarse_start_to_every_level():
 
 def test_coarse_to_fine_goes_through_the_field_interface_and_resumes_exactly(small, tmp_path):
     """fit raises the active levels each iteration through set_active_levels and leaves every
-    level on at the end; an interrupted run resumes to the same field; a field without the
-    interface is refused."""
+    level on at the end; an interrupted run resumes to the same field; a plain module (no hash
+    levels) trains as before."""
     survey, sig = small
     # two levels at or under the coarse start's resolution, two finer ones
     enc = HashEncodingConfig(n_levels=4, n_features=2, log2_table_size=8, base_resolution=64, finest_resolution=512)
@@ -501,5 +501,13 @@ def test_coarse_to_fine_goes_through_the_field_interface_and_resumes_exactly(sma
     again = fit(_field(survey, seed=99, encoding=enc), survey, sig, cfg, checkpoint_dir=tmp_path)
     assert again.start_iteration == 3
     assert np.allclose(again.loss_history, whole.loss_history, rtol=0, atol=1e-6)
-    with pytest.raises(ShsasError, match="coarse_to_fine"):
-        fit(torch.nn.Linear(3, 2), survey, sig, _cfg(iters=1, coarse_to_fine=0.5))
+    class Plain(torch.nn.Module):  # only forward: not a ScatteringField
+        def __init__(self) -> None:
+            super().__init__()
+            self.inner = _field(survey, encoding=enc)
+
+        def forward(self, *a, **k):
+            return self.inner(*a, **k)
+
+    off = fit(Plain(), survey, sig, _cfg(iters=3, coarse_to_fine=None)).loss_history
+    assert fit(Plain(), survey, sig, _cfg(iters=3, coarse_to_fine=0.5)).loss_history == off
