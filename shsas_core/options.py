@@ -56,10 +56,14 @@ NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| s
                       "point-cloud F1 on solid scenes (docs/neural.md)")
 
 CoarseToFine = Annotated[float, Field(gt=0, le=1)]
+#: Coarse-to-fine starts with the hash levels of resolution up to this on (8 of the ``cpu``
+#: preset's 12: 16 … 145 cells across the box).
+COARSE_TO_FINE_START_RESOLUTION = 150
 #: Coarse-to-fine hash levels (docs/neural.md, "Coarse-to-fine hash levels"): the fraction of the
 #: training iterations over which the fine levels come in; None: every level from the start.
 COARSE_TO_FINE: float | None = 0.25
-COARSE_TO_FINE_HELP = ("the neural field's hash levels finer than resolution 150 start switched off (the "
+COARSE_TO_FINE_HELP = (f"the neural field's hash levels finer than resolution {COARSE_TO_FINE_START_RESOLUTION} "
+                       "start switched off (the "
                        "start from backprojection is distilled without them) and come in one after the "
                        "other, each through a cosine window, over this fraction of the training iterations; "
                        "None: every level from the start (the paper)")

@@ -63,6 +63,7 @@ from .options import (
     AVERAGE_LAST_HELP,
     COARSE_TO_FINE,
     COARSE_TO_FINE_HELP,
+    COARSE_TO_FINE_START_RESOLUTION,
     ITERS,
     LR,
     LR_FINAL_HELP,
@@ -420,11 +421,6 @@ def _iteration_loss(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainC
 def _atomic_save(obj: Any, path: Path) -> None:
     with atomic_path(path) as tmp:
         torch.save(obj, tmp)
-
-
-#: Coarse-to-fine starts with the hash levels of resolution up to this on (8 of the ``cpu``
-#: preset's 12: 16 … 145 cells across the box).
-COARSE_TO_FINE_START_RESOLUTION = 150
 
 
 def coarse_start_levels(encoding: Any) -> int:
