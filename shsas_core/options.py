@@ -62,11 +62,11 @@ COARSE_TO_FINE_START_RESOLUTION = 150
 #: Coarse-to-fine hash levels (docs/neural.md, "Coarse-to-fine hash levels"): the fraction of the
 #: training iterations over which the fine levels come in; None: every level from the start.
 COARSE_TO_FINE: float | None = 0.25
-COARSE_TO_FINE_HELP = (f"the neural field's hash levels finer than resolution {COARSE_TO_FINE_START_RESOLUTION} "
-                       "start switched off (the "
-                       "start from backprojection is distilled without them) and come in one after the "
-                       "other, each through a cosine window, over this fraction of the training iterations; "
-                       "None: every level from the start (the paper)")
+COARSE_TO_FINE_HELP = ("the neural field's hash levels finer than resolution "
+                       f"{COARSE_TO_FINE_START_RESOLUTION} start switched off (the start from "
+                       "backprojection is distilled without them) and come in one after the other, each "
+                       "through a cosine window, over this fraction of the training iterations; None: "
+                       "every level from the start (the paper)")
 
 Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
 SEED = 0
