@@ -24,8 +24,13 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# The demo's scene: the Stanford bunny of ../shared when it lies beside the clone (the project
+# ships no third-party meshes), else the built-in sphere. On the bunny the three methods come in
+# the paper's order; on the small sphere their order follows the machine's rounding (README).
+DEMO_MESH ?= $(wildcard ../shared/data/meshes/bunny.obj)
+
 demo: $(STAMP)
-	$(BIN)/shsas demo --out $(DEMO_OUT)
+	$(BIN)/shsas demo --out $(DEMO_OUT) $(if $(DEMO_MESH),--mesh $(DEMO_MESH))
 
 # npm ci installs exactly the lockfile's versions; --ignore-scripts: nothing to run at install
 # (esbuild's binary comes as an optional dependency).
