@@ -75,8 +75,8 @@ def test_distill_reproduces_a_complex_image() -> None:
                    "AMD EPYC; 0.1815 -> 0.1723 on an Intel Xeon with the averaged weights); with 2^17 "
                    "rows it passed on the Intel Xeon (0.1696 -> 0.1747) but not on the AMD EPYC (0.1866 "
                    "-> 0.1848); with coarse-to-fine levels (the default since e418990, the start distilled "
-                   "with the 8 coarse levels as the pipeline does) the Intel Xeon gives 0.1658 -> 0.1604 and the AMD EPYC 0.1715 -> 0.1700, "
-                   "so it stays marked until it passes")
+                   "with the 8 coarse levels as the pipeline does) the Intel Xeon gives 0.1658 -> 0.1604 "
+                   "and the AMD EPYC 0.1715 -> 0.1700, so it stays marked until it passes")
 def test_fit_from_backprojection_scores_no_worse_than_its_start() -> None:
     """The issue's guarantee on a tiny scene: a short fit at the job spec's defaults (point-spread
     forward model, occupancy grid and sparsity prior from the same image), started from the
