@@ -90,6 +90,14 @@ GridCount = Annotated[int, Field(ge=8, le=512, description="voxels along the lon
 UniformFraction = Annotated[float, Field(ge=0, le=1, description="uniform share of the range-bin sampling pdf")]
 UNIFORM_FRACTION = 0.1
 
+#: Weight λ6 of the angular prior on SH-SAS's coefficients (shsas_core.train.relative_angular_roughness).
+AngularPrior = Annotated[float, Field(ge=0, le=100.0, description="weight λ6 of the angular prior")]
+ANGULAR_PRIOR = 0.0
+ANGULAR_PRIOR_HELP = ("weight λ6 of the angular prior on SH-SAS's scattering lobes: their Dirichlet energy "
+                      "on the sphere, Σ l(l+1)|c_lm|², over their isotropic energy |c_00|², so a lobe "
+                      "turns directional only as far as the echoes demand (docs/neural.md); 0: off, as "
+                      "in the paper; no effect at L = 0 (Reed)")
+
 #: Weight λ2 of the L1 sparsity prior on the field's density.
 SparsityWeight = Annotated[float, Field(ge=0, le=100.0, description="weight λ2 of the L1 sparsity prior "
                                         "on the neural field's density; 0: off")]

@@ -13,6 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from .methods import REGISTRY
 from .options import (
+    ANGULAR_PRIOR,
+    ANGULAR_PRIOR_HELP,
     AVERAGE_LAST,
     AVERAGE_LAST_HELP,
     COARSE_TO_FINE,
@@ -30,6 +32,7 @@ from .options import (
     SH_DEGREE,
     TARGET,
     TARGET_HELP,
+    AngularPrior,
     AverageLast,
     CoarseToFine,
     DeviceName,
@@ -102,6 +105,7 @@ class ReconstructionSpec(BaseModel):
         "density (the paper's L_sparse): it removes the low background the data term leaves in "
         "empty space, which otherwise lowers the extraction level (docs/neural.md); 0: off, as in "
         "the paper's simulated setting")
+    angular_prior: AngularPrior = Field(ANGULAR_PRIOR, description=ANGULAR_PRIOR_HELP)
     normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
@@ -129,6 +133,7 @@ class ReconstructionSpec(BaseModel):
 PAPER_SETTINGS: dict[str, object] = {
     "init": "none", "forward": "impulse", "target": "coherent", "lr": 1e-3, "encoding": "paper_gpu",
     "num_bins": 200, "num_rays": 4800, "iters": 50_000, "occupancy": None, "sparsity": 0.0,
+    "angular_prior": 0.0,
     "average_last": None, "coarse_to_fine": None,
 }
 PRESETS: dict[str, dict[str, object]] = {"default": {}, "paper": PAPER_SETTINGS}

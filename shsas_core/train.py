@@ -4,7 +4,7 @@ Each iteration picks ``pings_per_batch`` training pings, importance-samples ``nu
 per ping (∝ |s_PD| plus a uniform share), renders them with ``num_rays`` TX rays
 (:mod:`shsas_core.render`), and takes one Adam step (lr 1e-3) on the composite loss
 
-    L = λ1 L_ToF + λ2 L_sparse + λ3 TV(ρ) + λ4 TV(|σ|) + λ5 TV(∠σ)
+    L = λ1 L_ToF + λ2 L_sparse + λ3 TV(ρ) + λ4 TV(|σ|) + λ5 TV(∠σ) + λ6 L_ang
 
 * ``L_ToF = mean_k |A ŝ_k - s_k|^2 / E`` — mean squared complex error (real² + imag²) of the
   rendered bins, divided by the constant ``E``, the expected |s|² of a bin drawn by the sampler
@@ -16,6 +16,9 @@ per ping (∝ |s_PD| plus a uniform share), renders them with ``num_rays`` TX ra
   ``TV(ρ) = mean |ρ(x) - ρ(x+δ)|``, ``TV(|σ|) = mean ||σ(x)| - |σ(x+δ)||``,
   ``TV(∠σ) = mean |e^{i∠σ(x)} - e^{i∠σ(x+δ)}|`` (chord distance on the unit circle: ≈ |Δφ|
   for small differences, no 2π wrap, bounded gradient).
+* ``L_ang = Σ_x Σ_lm l(l+1)|c_lm(x)|² / Σ_x |c_00(x)|²`` over the same ``R`` samples: the
+  scattering lobe's Dirichlet energy on the sphere relative to its isotropic energy
+  (:func:`relative_angular_roughness`), a prior towards smooth, low-degree lobes (not in the paper).
 
 Data term (``TrainConfig.target``): ``"coherent"`` (default, the paper) fits the complex s_PD;
 ``"envelope"`` replaces every target ``s_k`` by ``|s_k|`` (real, non-negative) before anything
@@ -57,6 +60,7 @@ from .device import resolve_device
 from .errors import Cancelled, ShsasError
 from .fields.base import ScatteringField, device_dtype
 from .fields.occupancy import MaskedField, OccupancyGrid
+from .fields.sh import angular_roughness
 from .heap import heap_cache
 from .options import (
     AVERAGE_LAST,
@@ -112,10 +116,17 @@ class LossWeights(BaseModel):
     tv_density: float = Field(0.0, ge=0, description="λ3, TV of density")
     tv_scatter: float = Field(0.0, ge=0, description="λ4, TV of |σ|")
     tv_phase: float = Field(0.0, ge=0, description="λ5, TV of ∠σ")
+    angular: float = Field(0.0, ge=0, description="λ6, angular roughness Σ l(l+1)|c_lm|² of the SH "
+                           "coefficients relative to their DC energy (0 for L = 0)")
 
     @property
     def any_tv(self) -> bool:
         return self.tv_density > 0 or self.tv_scatter > 0 or self.tv_phase > 0
+
+    @property
+    def any_sampled(self) -> bool:
+        """Whether a term needs the field at the regularisers' random sample points."""
+        return self.any_tv or self.angular > 0
 
 
 #: Ratios of the public AirSAS configuration of the paper (sparsity 1e1, smooth 5e1, phase 1e-1
@@ -143,7 +154,8 @@ class TrainConfig(BaseModel):
     target: Target = Field(TARGET, description=TARGET_HELP)
     weights: LossWeights = LossWeights()
     tv_delta: float | None = Field(None, gt=0, description="TV offset length, m; None: box diagonal/128")
-    tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms")
+    tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms "
+                            "and the angular prior")
     reg_start: int = Field(0, ge=0, description="iteration from which λ2..λ5 apply")
     learn_amplitude: bool = Field(True, description="learn the global scale A (else fixed at its init)")
     psf_window: int = Field(64, ge=1, le=4096, description="with a point-spread kernel (fit's psf): "
@@ -360,15 +372,19 @@ def _regularisers(field, out: dict, geom: PingGeometry, cfg: TrainConfig, gen: t
     nvalid = valid.sum().clamp_min(1)
     terms["sparsity"] = dens.sum() / nvalid
     w = cfg.weights
-    if not w.any_tv:
+    if not w.any_sampled:
         return terms
     flat = torch.nonzero(valid.reshape(-1), as_tuple=False)[:, 0]
     if flat.numel() == 0:
         zero = dens.sum() * 0
-        return terms | {"tv_density": zero, "tv_scatter": zero, "tv_phase": zero}
+        return terms | {"tv_density": zero, "tv_scatter": zero, "tv_phase": zero, "angular": zero}
     perm = torch.randperm(flat.numel(), generator=gen)[: cfg.tv_points].to(flat.device)
     sel = flat[perm]
     x = out["x"].reshape(-1, 3)[sel]
+    if w.angular > 0:
+        terms["angular"] = relative_angular_roughness(field.coefficients(x))
+    if not w.any_tv:
+        return terms
     delta = torch.randn(sel.numel(), 3, generator=gen, dtype=torch.float64).to(x.device, x.dtype)
     delta = tv_delta * delta / delta.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     rx = geom.rx[:, None, None, :].expand(out["x"].shape).reshape(-1, 3)[sel]
@@ -385,6 +401,25 @@ def _regularisers(field, out: dict, geom: PingGeometry, cfg: TrainConfig, gen: t
     u1 = s1 / (a1 + 1e-12)
     terms["tv_phase"] = (u0 - u1).abs().mean()
     return terms
+
+
+def relative_angular_roughness(coeffs: torch.Tensor) -> torch.Tensor:
+    """The angular prior λ6 weighs: ``Σ_p Σ_lm l(l+1) |c_lm(p)|² / Σ_p |c_00(p)|²``.
+
+    The sphere's Dirichlet energy of the scattering (:func:`~shsas_core.fields.sh.angular_roughness`)
+    summed over the sample points, over their isotropic energy. The ratio is unitless (the
+    field's scale is the learned amplitude's business) and weights points by their energy, so
+    empty space neither dominates nor counts. The denominator is a constant of the step
+    (detached): the prior shrinks the directional terms, it does not reward a brighter DC term.
+
+    Args:
+        coeffs: (P, (L+1)^2) complex SH coefficients at P points.
+    Returns:
+        () real >= 0; 0 when L = 0.
+    """
+    dc = coeffs[:, 0]
+    energy = (dc.real.pow(2) + dc.imag.pow(2)).sum().detach()
+    return angular_roughness(coeffs).sum() / energy.clamp_min(torch.finfo(energy.dtype).tiny)
 
 
 def _predict(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainConfig, gen: torch.Generator, device,
@@ -409,9 +444,11 @@ def _iteration_loss(field, amp_mod: _Amplitude, data: _Data, survey, cfg: TrainC
     data_loss = (pred - target).abs().pow(2).mean() / data.energy
     w = cfg.weights
     loss = w.tof * data_loss
-    if it >= cfg.reg_start and (w.sparsity > 0 or w.any_tv):
+    if it >= cfg.reg_start and (w.sparsity > 0 or w.any_sampled):
         reg = _regularisers(field, out, geom, cfg, gen, tv_delta)
         loss = loss + w.sparsity * reg["sparsity"]
+        if w.angular > 0:
+            loss = loss + w.angular * reg["angular"]
         if w.any_tv:
             loss = (loss + w.tv_density * reg["tv_density"] + w.tv_scatter * reg["tv_scatter"]
                     + w.tv_phase * reg["tv_phase"])

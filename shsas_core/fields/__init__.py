@@ -16,7 +16,7 @@ from .encoding import (
     encoding_preset,
 )
 from .field import FieldConfig, SHField, normals_by_autograd, safe_normalize
-from .sh import num_coefficients, sh_basis, sh_index
+from .sh import angular_roughness, num_coefficients, sh_basis, sh_index
 
 __all__ = [
     "CPU_ENCODING",
@@ -27,6 +27,7 @@ __all__ = [
     "HashEncodingConfig",
     "SHField",
     "ScatteringField",
+    "angular_roughness",
     "device_dtype",
     "encode_fused",
     "encode_reference",

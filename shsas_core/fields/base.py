@@ -2,7 +2,7 @@
 
 :class:`ScatteringField` is that interface: ``forward`` (density, scattering, normals and the
 gradient they come from), the field's ``config``, the ``device`` and ``dtype`` its parameters
-live on, ``set_active_degree`` (progressive SH training) and ``set_active_levels`` (coarse-to-fine
+live on, ``coefficients`` (the angular prior, extraction), ``set_active_degree`` (progressive SH training) and ``set_active_levels`` (coarse-to-fine
 hash levels). :class:`~shsas_core.fields.SHField` and
 :class:`~shsas_core.fields.occupancy.MaskedField` implement it, so train no longer reaches into
 the field's layers or hangs private attributes on it.
@@ -42,6 +42,9 @@ class ScatteringField(Protocol):
 
     def forward(self, x: torch.Tensor, dirs: torch.Tensor, with_normals: bool = True,
                 create_graph: bool | None = None) -> dict[str, torch.Tensor]: ...
+
+    def coefficients(self, x: torch.Tensor) -> torch.Tensor:
+        """Complex SH coefficients c_lm(x): x (P, 3) m -> (P, (L+1)^2) complex."""
 
 
 def device_dtype(module: torch.nn.Module) -> tuple[torch.device, torch.dtype]:

@@ -8,7 +8,13 @@ import torch
 from scipy.special import roots_legendre, sph_harm_y
 
 from shsas_core.errors import ShsasError
-from shsas_core.fields.sh import num_coefficients, sh_basis, sh_closed_form, sh_index
+from shsas_core.fields.sh import (
+    angular_roughness,
+    num_coefficients,
+    sh_basis,
+    sh_closed_form,
+    sh_index,
+)
 
 
 def _dirs(theta: np.ndarray, phi: np.ndarray) -> torch.Tensor:
@@ -102,3 +108,44 @@ def test_closed_form_equals_sphericart_and_is_differentiable() -> None:
 def test_cuda_basis_matches_cpu() -> None:
     d = torch.randn(1000, 3, generator=torch.Generator().manual_seed(2))
     torch.testing.assert_close(sh_basis(d.cuda(), 3).cpu(), sh_basis(d, 3), rtol=1e-5, atol=1e-6)
+
+
+def test_angular_roughness_is_the_dirichlet_energy_by_quadrature() -> None:
+    # ∫ |∇_S σ|² dΩ with ∇_S σ = (∂σ/∂θ, ∂σ/∂φ / sin θ), the derivatives by autograd through the
+    # closed-form basis of the angles, integrated by a Gauss-Legendre rule in cos θ times
+    # equispaced φ: an independent route to the eigenvalue identity Σ l(l+1) |c_lm|².
+    g = torch.Generator().manual_seed(4)
+    coeffs = torch.randn(3, 16, dtype=torch.float64, generator=g)
+    xg, wg = roots_legendre(24)
+    n_phi = 48
+    ct, ph = np.meshgrid(xg, np.arange(n_phi) * 2 * np.pi / n_phi, indexing="ij")
+    theta = torch.from_numpy(np.arccos(ct.ravel())).requires_grad_(True)
+    phi = torch.from_numpy(ph.ravel()).requires_grad_(True)
+    st = torch.sin(theta)
+    y = sh_closed_form(torch.stack([st * torch.cos(phi), st * torch.sin(phi), torch.cos(theta)], 1), 3)
+    w = torch.from_numpy((wg[:, None] * np.full(n_phi, 2 * np.pi / n_phi)[None, :]).ravel())
+    for c in coeffs:
+        sigma = y @ c
+        d_theta, d_phi = torch.autograd.grad(sigma.sum(), (theta, phi), retain_graph=True)
+        energy = (w * (d_theta**2 + (d_phi / st) ** 2)).sum()
+        np.testing.assert_allclose(float(angular_roughness(c[None])[0]), float(energy.detach()), rtol=1e-9)
+
+
+def test_angular_roughness_of_complex_coefficients_and_its_weights() -> None:
+    # one unit coefficient per column: the weight l(l+1) of its degree; complex = real² + imag²
+    eye = torch.eye(16, dtype=torch.float64)
+    expected = torch.tensor([d * (d + 1) for d in range(4) for _ in range(2 * d + 1)], dtype=torch.float64)
+    torch.testing.assert_close(angular_roughness(eye), expected)
+    c = torch.complex(eye, 2 * eye)
+    torch.testing.assert_close(angular_roughness(c), 5 * expected)
+    assert float(angular_roughness(torch.ones(5, 1))[0]) == 0.0  # L = 0: isotropic
+    with pytest.raises(ShsasError, match=r"\(P, \(L\+1\)\^2\)"):
+        angular_roughness(torch.ones(4, 5))
+
+
+def test_angular_roughness_gradcheck() -> None:
+    c = torch.complex(torch.randn(4, 9, dtype=torch.float64), torch.randn(4, 9, dtype=torch.float64))
+    assert torch.autograd.gradcheck(angular_roughness, (c.requires_grad_(True),))
+    zero = torch.zeros(2, 9, dtype=torch.complex128, requires_grad=True)
+    (g,) = torch.autograd.grad(angular_roughness(zero).sum(), zero)
+    assert torch.isfinite(torch.view_as_real(g)).all()
