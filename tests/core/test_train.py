@@ -142,13 +142,18 @@ def test_progressive_sh_goes_through_the_field_interface(small):
         fit(torch.nn.Linear(3, 2), survey, sig, _cfg(iters=1, progressive_sh_every=1))
 
 
+def _box_points(survey, n=4000, seed=0):
+    """(n, 3) float32 points uniform in the survey's scene box, m."""
+    box = survey.meta.scene_box
+    u = torch.rand(n, 3, generator=torch.Generator().manual_seed(seed))
+    return u * torch.tensor(box.size, dtype=torch.float32) + torch.tensor(box.min, dtype=torch.float32)
+
+
 def test_sparsity_weight_lowers_density(small):
     """λ2 > 0 lowers the density. A is pinned: a learned A lets the prior trade density for
     amplitude (docs/neural.md), which with 15 steps left the effect at the threshold."""
     survey, sig = small
-    box = survey.meta.scene_box
-    pts = torch.rand(4000, 3, generator=torch.Generator().manual_seed(0)) * torch.tensor(box.size, dtype=torch.float32) \
-        + torch.tensor(box.min, dtype=torch.float32)
+    pts = _box_points(survey)
     means = []
     for w in (0.0, 1000.0):
         f = _field(survey)
@@ -184,9 +189,7 @@ def test_angular_prior_shrinks_the_directional_terms_and_is_void_at_degree_0(sma
     """λ6 > 0 lowers the fitted field's angular roughness relative to its DC energy; at L = 0
     there is nothing to shrink, so the losses are those of λ6 = 0 to the bit."""
     survey, sig = small
-    box = survey.meta.scene_box
-    pts = torch.rand(4000, 3, generator=torch.Generator().manual_seed(0)) * torch.tensor(box.size, dtype=torch.float32) \
-        + torch.tensor(box.min, dtype=torch.float32)
+    pts = _box_points(survey)
     rough = []
     for w in (0.0, 10.0):
         f = _field(survey, degree=2)
