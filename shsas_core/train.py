@@ -31,7 +31,7 @@ the surface explains it within a few hundred iterations (docs/neural.md).
 ``A = exp(log_amplitude)`` is one learnable real scale, initialised in closed form before the
 first step as ``‖s‖ / ‖ŝ‖`` over 8 seeded batches, so the field does not have to grow its output by
 orders of magnitude to meet the data's units. Default weights follow the paper's simulated
-setting (regularisers off: λ1 = 1, λ2..λ5 = 0); :data:`AIRSAS_WEIGHTS` keeps the ratios of the
+setting (regularisers off: λ1 = 1, λ2..λ6 = 0); :data:`AIRSAS_WEIGHTS` keeps the ratios of the
 public AirSAS configuration.
 
 Determinism and resume: every random draw of iteration ``i`` comes from generators seeded with
@@ -156,7 +156,7 @@ class TrainConfig(BaseModel):
     tv_delta: float | None = Field(None, gt=0, description="TV offset length, m; None: box diagonal/128")
     tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms "
                             "and the angular prior")
-    reg_start: int = Field(0, ge=0, description="iteration from which λ2..λ5 apply")
+    reg_start: int = Field(0, ge=0, description="iteration from which λ2..λ6 apply")
     learn_amplitude: bool = Field(True, description="learn the global scale A (else fixed at its init)")
     psf_window: int = Field(64, ge=1, le=4096, description="with a point-spread kernel (fit's psf): "
                             "contiguous target bins per ping and iteration (replaces num_bins)")
