@@ -2,8 +2,8 @@
 
 :class:`ScatteringField` is that interface: ``forward`` (density, scattering, normals and the
 gradient they come from), the field's ``config``, the ``device`` and ``dtype`` its parameters
-live on, ``coefficients`` (the angular prior, extraction), ``set_active_degree`` (progressive SH training) and ``set_active_levels`` (coarse-to-fine
-hash levels). :class:`~shsas_core.fields.SHField` and
+live on, ``coefficients`` (the angular prior, extraction), ``set_active_degree`` (progressive SH
+training) and ``set_active_levels`` (coarse-to-fine hash levels). :class:`~shsas_core.fields.SHField` and
 :class:`~shsas_core.fields.occupancy.MaskedField` implement it, so train no longer reaches into
 the field's layers or hangs private attributes on it.
 

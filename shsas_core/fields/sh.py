@@ -122,11 +122,6 @@ def sh_closed_form(dirs: torch.Tensor, degree: int) -> torch.Tensor:
     return torch.stack(cols, 1)
 
 
-def degree_of_columns(degree: int) -> torch.Tensor:
-    """l of every column of :func:`sh_basis` up to degree L: ((L+1)^2,) int64, l-major."""
-    return torch.cat([torch.full((2 * l + 1,), l, dtype=torch.int64) for l in range(degree + 1)])  # noqa: E741
-
-
 def angular_roughness(coeffs: torch.Tensor) -> torch.Tensor:
     """Dirichlet energy on the sphere of ``σ(ω) = Σ c_lm Y_lm(ω)``: ``∫ |∇_S σ|² dω = Σ l(l+1) |c_lm|²``.
 
@@ -141,11 +136,11 @@ def angular_roughness(coeffs: torch.Tensor) -> torch.Tensor:
         (P,) real, >= 0, in the squared units of the coefficients (times sr⁰: the Y_lm are
         dimensionless on the unit sphere).
     """
-    k = coeffs.shape[-1]
-    degree = math.isqrt(k) - 1
-    if coeffs.ndim != 2 or (degree + 1) ** 2 != k:
+    degree = math.isqrt(coeffs.shape[-1]) - 1 if coeffs.ndim == 2 else -1
+    if degree < 0 or num_coefficients(degree) != coeffs.shape[-1]:
         raise ShsasError(f"angular_roughness: coeffs must have shape (P, (L+1)^2), got {tuple(coeffs.shape)}")
-    l = degree_of_columns(degree).to(coeffs.device)  # noqa: E741
+    # column l^2 + l + m has degree l = floor(sqrt(column))
+    l = torch.arange(coeffs.shape[-1], device=coeffs.device).float().sqrt().floor()  # noqa: E741
     weight = (l * (l + 1)).to(coeffs.real.dtype)
     # re² + im² rather than |c|²: smooth at c = 0, where |c| has no derivative
     power = coeffs.real.pow(2) + coeffs.imag.pow(2) if coeffs.is_complex() else coeffs.pow(2)
