@@ -1,0 +1,165 @@
+"""Does a short neural fit end no worse than the backprojection image it starts from? (issue 12)
+
+The pipeline starts each neural method from the job's backprojection image (distilled into the
+field, ``shsas_core.warmstart``) and then fits it to the time-of-flight data. This benchmark runs
+that chain, as ``pipeline._fit_neural`` does with the spec defaults, on a small survey and scores
+three clouds against the ground truth with the scoreboard's rule (Otsu level, design §5
+occupancy F1): the backprojection image, the started field (both inside the occupancy mask the
+fit uses) and the fitted field. It prints them side by side per scene and seed, with point-cloud
+precision / recall and the fit's data-loss ratio (mean of the last 15 iterations over the first 15).
+
+The small survey is a circle of ``--heights`` x ``--angles`` pings at 20 dB, scored on a
+``--grid`` voxel grid, fitted for ``--iters`` iterations (L = 3, SH-SAS). Scenes: ``bunny``
+(``../shared/data/meshes``, or ``--meshes``) and the built-in shapes. The seed is the survey's
+and the training's, as in the fidelity benchmark.
+
+``tests/core/test_warmstart.py`` runs :func:`warm_start_case` on the bunny at seed 0.
+
+Usage::
+
+    python benchmarks/bench_warmstart.py                        # bunny and sphere, seeds 0-4
+    python benchmarks/bench_warmstart.py --scenes bunny --seeds 0,1,2 --iters 150 --heights 4 --angles 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """One small warm-start run: ``metrics.score_points`` of the image's, the started field's and
+    the fitted field's point clouds (``f1``, ``precision``, ``recall``, ``fscore``, ...)."""
+
+    scene: str
+    seed: int
+    image: dict[str, float]
+    start: dict[str, float]
+    end: dict[str, float]
+    loss_ratio: float
+    seconds: float
+
+
+def scene_source(scene: str, meshes: Path) -> str:
+    """A built-in shape's name, or the path of ``<scene>.obj`` in ``meshes``."""
+    from shsas_core.shapes import SHAPES
+
+    if scene in SHAPES:
+        return scene
+    path = meshes / f"{scene}.obj"
+    if not path.exists():
+        raise SystemExit(f"scene '{scene}': {path} not found (set --meshes)")
+    return str(path)
+
+
+def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 90, grid: int = 48,
+                    iters: int = 300, scene: str = "") -> Case:
+    """Simulate ``source`` (a shape name or mesh path), backproject it, start SH-SAS from the
+    image as the pipeline does and fit it for ``iters`` iterations at the spec defaults; score
+    the image, the started field and the fitted field against the ground truth."""
+    import torch
+
+    from shsas_core.backprojection import backproject_survey
+    from shsas_core.deconv import deconvolve, point_spread
+    from shsas_core.extract import extract, field_volume
+    from shsas_core.fields import FieldConfig, SHField, encoding_preset
+    from shsas_core.fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
+    from shsas_core.metrics import GroundTruth, score_points
+    from shsas_core.pipeline import deconv_config, train_config
+    from shsas_core.simulate import simulate_shape
+    from shsas_core.spec import ReconstructionSpec
+    from shsas_core.train import coarse_start_levels, fit
+    from shsas_core.volume import Grid
+    from shsas_core.warmstart import WarmStartConfig, distill
+
+    spec = ReconstructionSpec(iters=iters, seed=seed)
+    survey = simulate_shape(source, heights=heights, angles=angles, snr_db=20.0, seed=seed)
+    s_pd = np.asarray(deconvolve(survey, deconv_config(spec)), dtype=np.complex64)
+    box = survey.meta.scene_box
+    vox = Grid.over(box, grid)
+    image = backproject_survey(survey, vox, s_pd)
+    gt = GroundTruth.from_survey(survey)
+
+    def score(volume) -> dict[str, float]:
+        _tau, cloud, _mesh = extract(volume)
+        return score_points(cloud.points, gt)
+
+    t0 = time.perf_counter()
+    torch.manual_seed(spec.seed)
+    fcfg = FieldConfig(sh_degree=spec.sh_degree, scene_box=box, encoding=encoding_preset(spec.encoding))
+    field = SHField(fcfg)
+    if spec.coarse_to_fine is not None:  # as the pipeline: the start holds the levels the fit starts with
+        field.set_active_levels(coarse_start_levels(fcfg.encoding))
+    distill(field, image, WarmStartConfig(seed=spec.seed))
+    assert spec.occupancy is not None
+    occupancy = OccupancyGrid.from_volume(image, OccupancyConfig(level=spec.occupancy))
+    model = MaskedField(field, occupancy)
+    start = score(field_volume(model, vox))
+    result = fit(field, survey, s_pd, train_config(spec), psf=point_spread(survey, deconv_config(spec)),
+                 occupancy=occupancy)
+    end = score(field_volume(model, vox))
+    dl = np.asarray(result.data_loss_history, dtype=np.float64)
+    k = min(15, len(dl) // 2)
+    ratio = float(dl[-k:].mean() / dl[:k].mean()) if k else float("nan")
+    return Case(scene or source, seed, score(image), start, end, ratio, time.perf_counter() - t0)
+
+
+def row(c: Case) -> str:
+    def f(s: dict[str, float]) -> str:
+        return f"{s['f1']:.4f} ({s['precision']:.3f}/{s['recall']:.3f}), {s['fscore']:.3f}"
+
+    gain = c.end["f1"] - c.start["f1"]
+    return (f"| {c.scene} | {c.seed} | {f(c.image)} | {f(c.start)} | {f(c.end)} | {gain:+.4f} | "
+            f"{'yes' if gain >= 0 else 'NO'} | {'yes' if c.end['f1'] >= c.image['f1'] else 'NO'} | "
+            f"{c.loss_ratio:.2f} | {c.seconds:.0f} |")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenes", default="bunny,sphere", help="comma list: bunny, armadillo or a built-in shape")
+    ap.add_argument("--seeds", default="0,1,2,3,4", help="comma list of seeds (survey and training)")
+    ap.add_argument("--heights", type=int, default=6)
+    ap.add_argument("--angles", type=int, default=90)
+    ap.add_argument("--grid", type=int, default=48)
+    ap.add_argument("--iters", type=int, default=300)
+    ap.add_argument("--meshes", default=os.environ.get("SHSAS_MESH_DIR") or str(ROOT.parent / "shared" / "data" / "meshes"))
+    args = ap.parse_args(argv)
+    import torch
+
+    print(f"# {args.heights} x {args.angles} pings, grid {args.grid}, {args.iters} iterations, "
+          f"torch {torch.__version__}, {torch.get_num_threads()} threads, load {os.getloadavg()[0]:.2f}")
+    print("| scene | seed | image: F1 (P/R), F@5mm | started field | fitted field | F1 fit − start | "
+          "end ≥ start | end ≥ image | data loss last/first | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    cases = []
+    for scene in args.scenes.split(","):
+        for seed in (int(s) for s in args.seeds.split(",")):
+            c = warm_start_case(scene_source(scene, Path(args.meshes)), seed, args.heights, args.angles,
+                                args.grid, args.iters, scene=scene)
+            cases.append(c)
+            print(row(c), flush=True)
+    for scene in dict.fromkeys(c.scene for c in cases):
+        sel = [c for c in cases if c.scene == scene]
+
+        def mean(stage: str, key: str, sel: list[Case] = sel) -> float:
+            return float(np.mean([getattr(c, stage)[key] for c in sel]))
+
+        print(f"{scene}: F1 end >= start on {sum(c.end['f1'] >= c.start['f1'] for c in sel)}/{len(sel)} "
+              f"seeds, end >= image on {sum(c.end['f1'] >= c.image['f1'] for c in sel)}/{len(sel)}; mean F1 "
+              f"image / start / end {mean('image', 'f1'):.4f} / {mean('start', 'f1'):.4f} / "
+              f"{mean('end', 'f1'):.4f}; mean F@5mm {mean('image', 'fscore'):.3f} / "
+              f"{mean('start', 'fscore'):.3f} / {mean('end', 'fscore'):.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
