@@ -4,9 +4,10 @@ The pipeline starts each neural method from the job's backprojection image (dist
 field, ``shsas_core.warmstart``) and then fits it to the time-of-flight data. This benchmark runs
 that chain, as ``pipeline._fit_neural`` does with the spec defaults, on a small survey and scores
 three clouds against the ground truth with the scoreboard's rule (Otsu level, design §5
-occupancy F1): the backprojection image, the started field (both inside the occupancy mask the
-fit uses) and the fitted field. It prints them side by side per scene and seed, with point-cloud
-precision / recall and the fit's data-loss ratio (mean of the last 15 iterations over the first 15).
+occupancy F1): the backprojection image, the started field and the fitted field (the two fields
+inside the occupancy mask the fit uses, as the pipeline extracts them). It prints them side by
+side per scene and seed, with point-cloud precision / recall, F@5mm and the fit's data-loss ratio
+(mean of the last 15 iterations over the first 15).
 
 The small survey is a circle of ``--heights`` x ``--angles`` pings at 20 dB, scored on a
 ``--grid`` voxel grid, fitted for ``--iters`` iterations (L = 3, SH-SAS). Scenes: ``bunny``
@@ -78,7 +79,7 @@ def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 
     from shsas_core.simulate import simulate_shape
     from shsas_core.spec import ReconstructionSpec
     from shsas_core.train import coarse_start_levels, fit
-    from shsas_core.volume import Grid
+    from shsas_core.volume import Grid, Volume
     from shsas_core.warmstart import WarmStartConfig, distill
 
     spec = ReconstructionSpec(iters=iters, seed=seed)
@@ -89,7 +90,7 @@ def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 
     image = backproject_survey(survey, vox, s_pd)
     gt = GroundTruth.from_survey(survey)
 
-    def score(volume) -> dict[str, float]:
+    def score(volume: Volume) -> dict[str, float]:
         _tau, cloud, _mesh = extract(volume)
         return score_points(cloud.points, gt)
 
