@@ -11,7 +11,7 @@ side per scene and seed, with point-cloud precision / recall, F@5mm and the fit'
 
 The small survey is a circle of ``--heights`` x ``--angles`` pings at 20 dB, scored on a
 ``--grid`` voxel grid, fitted for ``--iters`` iterations (L = 3, SH-SAS). Scenes: ``bunny``
-(``../shared/data/meshes``, or ``--meshes``) and the built-in shapes. The seed is the survey's
+and ``armadillo`` (as in ``bench_fidelity.py``) and the built-in shapes. The seed is the survey's
 and the training's, as in the fidelity benchmark.
 
 ``tests/core/test_warmstart.py`` runs :func:`warm_start_case` on the bunny at seed 0.
@@ -33,7 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bench_fidelity as fid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,18 +50,6 @@ class Case:
     end: dict[str, float]
     loss_ratio: float
     seconds: float
-
-
-def scene_source(scene: str, meshes: Path) -> str:
-    """A built-in shape's name, or the path of ``<scene>.obj`` in ``meshes``."""
-    from shsas_core.shapes import SHAPES
-
-    if scene in SHAPES:
-        return scene
-    path = meshes / f"{scene}.obj"
-    if not path.exists():
-        raise SystemExit(f"scene '{scene}': {path} not found (set --meshes)")
-    return str(path)
 
 
 def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 90, grid: int = 48,
@@ -132,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--angles", type=int, default=90)
     ap.add_argument("--grid", type=int, default=48)
     ap.add_argument("--iters", type=int, default=300)
-    ap.add_argument("--meshes", default=os.environ.get("SHSAS_MESH_DIR") or str(ROOT.parent / "shared" / "data" / "meshes"))
+    ap.add_argument("--meshes", help="folder with bunny.obj and armadillo.obj "
+                    "(default $SHSAS_MESH_DIR or ../shared/data/meshes)")
     args = ap.parse_args(argv)
     import torch
 
@@ -144,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     cases = []
     for scene in args.scenes.split(","):
         for seed in (int(s) for s in args.seeds.split(",")):
-            c = warm_start_case(scene_source(scene, Path(args.meshes)), seed, args.heights, args.angles,
+            c = warm_start_case(fid.scene_source(scene, fid.mesh_dir(args.meshes)), seed, args.heights, args.angles,
                                 args.grid, args.iters, scene=scene)
             cases.append(c)
             print(row(c), flush=True)

@@ -3,24 +3,15 @@ search, and its re-scoring against the pipeline's own point cloud at the same τ
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_levels.py"
+from .bench_scripts import load_bench
 
 
 @pytest.fixture(scope="module")
 def levels():
-    sys.path.insert(0, str(BENCH.parent))
-    spec = importlib.util.spec_from_file_location("bench_levels", BENCH)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["bench_levels"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("bench_levels")
 
 
 def brute_otsu(x: np.ndarray, candidates: np.ndarray) -> float:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
-from types import ModuleType
 
 import numpy as np
 import pytest
@@ -17,6 +14,8 @@ from shsas_core.fields import FieldConfig, HashEncodingConfig, SHField
 from shsas_core.survey import SceneBox
 from shsas_core.volume import Grid, Volume
 from shsas_core.warmstart import INV_SQRT_4PI, WarmStartConfig, distill, image_target, sample_image
+
+from .bench_scripts import load_bench
 
 SMALL = HashEncodingConfig(n_levels=6, log2_table_size=12, base_resolution=4, finest_resolution=64)
 
@@ -80,7 +79,7 @@ def test_fit_from_backprojection_scores_no_worse_than_its_start(shared: Path) ->
     occupancy (design §5) is its surface band and F1 scores the surface the fit sharpens. The
     solid sphere this test used before counts its unobservable inside, so a sharper shell loses
     recall there whatever the fit does (docs/neural.md, "Does the fit end above its start?")."""
-    bench = _load_bench("bench_warmstart")
+    bench = load_bench("bench_warmstart")
     case = bench.warm_start_case(str(shared / "data" / "meshes" / "bunny.obj"), seed=0)
     print(case)
     assert case.image["f1"] > 0.2, case  # the image holds the surface already
@@ -88,13 +87,3 @@ def test_fit_from_backprojection_scores_no_worse_than_its_start(shared: Path) ->
     assert case.end["f1"] >= case.start["f1"], case
     assert case.end["f1"] >= case.image["f1"], case
 
-
-def _load_bench(name: str) -> ModuleType:
-    """A script of benchmarks/ as a module."""
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py"
-    spec = importlib.util.spec_from_file_location(name, path)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod  # a dataclass resolves its annotations through its module
-    spec.loader.exec_module(mod)
-    return mod
