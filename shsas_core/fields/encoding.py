@@ -524,11 +524,13 @@ def encode_fused(
 
 #: How the encoding (and the field around it) is computed; every backend gives the same values.
 #: ``reference``: per-level Python loop (the test oracle; normals by double backward in the field);
-#: ``fused``: all levels in one gather, with the analytic Jacobian, in PyTorch ops; ``native``:
-#: ``fused`` with the C kernel of :mod:`.native` on float32 CPU tensors when it builds (elsewhere
-#: ``fused``); ``compiled``: ``fused`` through ``torch.compile`` (20-60 s to compile on a 2-core
-#: CPU, no faster there).
-Backend = Literal["reference", "fused", "native", "compiled"]
+#: ``fused``: all levels in one gather, with the analytic Jacobian, in PyTorch ops; ``native``
+#: (the device's own kernel): ``fused`` with the C kernel of :mod:`.native` on float32 CPU
+#: tensors when it builds, with the Triton kernels of :mod:`.encoding_triton` on float32/float64
+#: CUDA tensors when Triton imports, elsewhere ``fused``; ``triton``: always the Triton kernels
+#: (CUDA, or CPU under ``TRITON_INTERPRET=1``; a clear error otherwise); ``compiled``: ``fused``
+#: through ``torch.compile`` (20-60 s to compile on a 2-core CPU, no faster there).
+Backend = Literal["reference", "fused", "native", "triton", "compiled"]
 BACKENDS: tuple[str, ...] = get_args(Backend)
 
 
@@ -568,17 +570,35 @@ class HashEncoding(torch.nn.Module):
         if u.ndim != 2 or u.shape[1] != 3:
             raise ShsasError(f"hash encoding: points must have shape (P, 3), got {tuple(u.shape)}")
 
-    def forward(self, u: torch.Tensor) -> torch.Tensor:
+    def _triton(self, u: torch.Tensor) -> bool:
+        """Whether this call runs the Triton kernels: always for ``triton``; for ``native`` on
+        the tensors they take on CUDA (imported only then: the CPU path never loads Triton)."""
+        if self.backend == "triton":
+            return True
+        if self.backend != "native" or u.device.type != "cuda":
+            return False
+        from . import encoding_triton
+
+        return encoding_triton.usable(u, self.table)
+
+    def _encode(self, u: torch.Tensor, with_jacobian: bool) -> tuple[torch.Tensor, torch.Tensor | None]:
         self._check(u)
+        fl = self.fused_layout(u.device)
+        if self._triton(u):
+            from .encoding_triton import encode_triton
+
+            return encode_triton(u, self.table, fl, with_jacobian)
+        return encode_fused(u, self.table, fl, with_jacobian=with_jacobian, compiled=self.backend == "compiled",
+                            use_native=self.backend == "native")
+
+    def forward(self, u: torch.Tensor) -> torch.Tensor:
         if self.backend == "reference":
+            self._check(u)
             return encode_reference(u, self.table, self.layout)
-        return encode_fused(u, self.table, self.fused_layout(u.device), compiled=self.backend == "compiled",
-                            use_native=self.backend == "native")[0]
+        return self._encode(u, False)[0]
 
     def forward_with_jacobian(self, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Features (P, D) and their Jacobian as tangents (3, P, D) = d features / d u_a."""
-        self._check(u)
-        out, jac = encode_fused(u, self.table, self.fused_layout(u.device), with_jacobian=True,
-                                compiled=self.backend == "compiled", use_native=self.backend == "native")
+        out, jac = self._encode(u, True)
         assert jac is not None
         return out, jac

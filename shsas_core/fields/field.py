@@ -37,10 +37,13 @@ so the field settles its coarse shape before the fine, more collided levels can 
   extra small matmul per layer). The normal is then an ordinary differentiable function of the
   parameters: training needs one first-order backward instead of a double backward, and the
   encoding is evaluated once per forward.
-* ``native`` (the default): ``fused``, and on a CPU with float32 the encoding's forward and
-  first-order backward run in the C kernel of :mod:`.native` (one pass per point and level, the
-  corner values in registers), built on first use; the PyTorch fused ops when no compiler is
-  there. Same values.
+* ``native`` (the default): ``fused``, with the encoding's forward and first-order backward in
+  the device's own kernel (one pass per point and level, the corner values in registers): on a
+  CPU with float32 the C kernel of :mod:`.native`, built on first use; on CUDA the Triton
+  kernels of :mod:`.encoding_triton` when Triton imports; the PyTorch fused ops otherwise.
+  Same values.
+* ``triton``: ``fused`` with the Triton kernels always (CUDA; CPU tensors only under Triton's
+  interpreter, ``TRITON_INTERPRET=1``, which is how the tests run them without a GPU).
 * ``compiled``: the fused encoding kernels through ``torch.compile`` (measured on
   a 2-core CPU: 20–60 s to compile, then no faster than the fused eager kernels; off by default).
 """
@@ -89,8 +92,10 @@ class FieldConfig(BaseModel):
         "factor (a per-coefficient step size for Adam; 1.0: plain outputs), see the module docstring")
     backend: Backend = Field(
         "native", description="reference (loop encoding, autograd normals: the oracle), fused (batched "
-        "encoding + analytic normals), native (fused + the C encoding kernel on float32 CPU, built on "
-        "first use; fused without a compiler) or compiled (fused through torch.compile); same maths")
+        "encoding + analytic normals), native (fused + the device's encoding kernel: C on float32 CPU, "
+        "built on first use, Triton on CUDA; fused without either), triton (fused + the Triton "
+        "kernels always: CUDA, or CPU under TRITON_INTERPRET=1) or compiled (fused through "
+        "torch.compile); same maths")
 
     @property
     def num_coefficients(self) -> int:
