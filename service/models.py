@@ -67,6 +67,8 @@ class JobOut(BaseModel):
     warnings: list[ResultWarningOut] = Field(
         default_factory=list, description="signs that a method's result failed although the job succeeded "
         "(collapsed volume, cloud filling the scene box, data loss that did not fall); empty when none")
+    device: str | None = Field(
+        None, description="the device that ran the job: cpu or cuda:N (card name); null until it succeeded")
     artifacts: list[ArtifactLink]
     links: dict[str, str]
     queue_position: int | None = Field(
@@ -96,6 +98,7 @@ class JobOut(BaseModel):
             updated_at=iso(job.updated_at), error=job.error, spec=job.spec,
             input=JobInput(digest=job.input_digest, bytes=job.input_bytes, name=job.input_name),
             metrics=job.metrics, warnings=[ResultWarningOut.model_validate(w) for w in job.warnings],
+            device=job.device,
             artifacts=[ArtifactLink(name=a, url=f"{url}/artifacts/{a}") for a in job.artifacts],
             links={"self": url, "cancel": f"{url}/cancel", "artifacts": f"{url}/artifacts"},
             **(dataclasses.asdict(live) if live is not None else {}),

@@ -26,3 +26,11 @@ def resolve_device(name: str = "auto") -> torch.device:
             raise ShsasError(f"device: '{name}' does not exist ({torch.cuda.device_count()} CUDA devices)")
         return dev
     raise ShsasError(f"device: unknown device '{name}' (use auto, cpu, cuda or cuda:N)")
+
+
+def describe_device(device: torch.device) -> str:
+    """What ran a job, for its report and status: ``cpu``, or ``cuda:N (card name)``."""
+    if device.type != "cuda":
+        return device.type
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    return f"cuda:{index} ({torch.cuda.get_device_name(index)})"

@@ -91,6 +91,7 @@ class PipelineResult(BaseModel):
     report_json: str
     report_html: str
     timings: dict[str, float] = Field(description="seconds per stage")
+    device: str = Field(description="the torch device that ran the job: cpu or cuda:N (card)")
     warnings: dict[str, list[ResultWarning]] = Field(
         default_factory=dict, description="method -> signs that its result failed (empty list: none found)")
 
@@ -184,7 +185,7 @@ def run(
         ShsasError: bad input (survey, spec, device), ``MemoryBudgetError`` over the budget;
         Cancelled: on request.
     """
-    from .device import resolve_device
+    from .device import describe_device, resolve_device
 
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -245,7 +246,7 @@ def run(
     summary = summarize(survey)
     _add_focus_height(summary, figures)
     report = Report(spec=spec, survey=summary, ground_truth=gt is not None, timings=timings,
-                    methods=reports, artifacts=artifacts)
+                    device=describe_device(device), methods=reports, artifacts=artifacts)
     json_path, html_path = write_report(report, figures, out)
     timings["report"] = time.perf_counter() - t
     timings["total"] = time.perf_counter() - t_start
@@ -259,7 +260,7 @@ def run(
                                   "faces": float(r.faces), "seconds": r.seconds})
     return PipelineResult(out_dir=str(out), artifacts=artifacts, metrics=metrics,
                           report_json=str(json_path), report_html=str(html_path), timings=timings,
-                          warnings=report.warnings())
+                          device=report.device or "", warnings=report.warnings())
 
 
 def _add_focus_height(summary: dict[str, Any], figures: ReportFigures) -> None:

@@ -87,6 +87,8 @@ class Report(BaseModel):
     ground_truth: bool
     metrics_protocol: str = METRICS_PROTOCOL
     timings: dict[str, float] = Field(default_factory=dict, description="seconds per stage")
+    # None in reports written before it was recorded (they still load)
+    device: str | None = Field(None, description="the torch device that ran the job: cpu or cuda:N (card)")
     methods: list[MethodReport] = Field(default_factory=list)
     artifacts: list[str] = Field(default_factory=list, description="file names in out_dir")
 
@@ -326,7 +328,7 @@ def render_html(report: Report, figures: ReportFigures) -> str:
         "margin:0.5em 0}",
         "</style></head><body>",
         f"<h1>shsas reconstruction report</h1><p>shsas {esc(report.shsas_version)}, "
-        f"{esc(report.created_utc)}</p>",
+        f"{esc(report.created_utc)}" + (f", on {esc(report.device)}" if report.device else "") + "</p>",
         # first thing after the title: a failed result must not pass for a good one
         warnings_html(report),
         "<h2>Survey</h2><table>",

@@ -203,10 +203,12 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         for w in warnings:
             log.warning("job %s: %s: %s (%.3g vs limit %.3g)", job.id, w["method"], w["message"],
                         w["measure"], w["limit"])
-        if not store.finish(job.id, owner, "succeeded", artifacts=artifacts, metrics=metrics, warnings=warnings):
+        if not store.finish(job.id, owner, "succeeded", artifacts=artifacts, metrics=metrics, warnings=warnings,
+                            device=result.device):
             return _lost(store, settings, job)
-        log.info("job %s succeeded", job.id, extra={"job_id": job.id, "status": "succeeded",
-                                                    "artifacts": len(artifacts), "warnings": len(warnings)})
+        log.info("job %s succeeded on %s", job.id, result.device,
+                 extra={"job_id": job.id, "status": "succeeded", "device": result.device,
+                        "artifacts": len(artifacts), "warnings": len(warnings)})
         return "succeeded"
     except Exception as exc:  # report, never crash the worker on one bad job
         log.error("job %s: unexpected error:\n%s", job.id, traceback.format_exc())

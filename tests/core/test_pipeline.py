@@ -46,6 +46,7 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     assert len(pc["x"]) > 0 and len(mesh.faces) > 0 and len(glb.geometry) == 1
     rep = load_report(res.report_json)
     assert rep.methods[0].method == "backprojection"
+    assert res.device == rep.device == "cpu" and "on cpu" in (tmp_path / "report.html").read_text()
     assert res.warnings == {"backprojection": []} and rep.methods[0].warnings == []  # a good image
     # the image lands on the 8 cm sphere: centred on it, Chamfer-L1 of a few voxels
     m = res.metrics["backprojection"]

@@ -70,6 +70,7 @@ def test_upload_poll_download_meshes(client, done_job) -> None:
     assert done["progress"] == 1.0 and done["attempts"] == 1 and done["error"] is None
     assert done["started_at"] and done["finished_at"] and done["metrics"]
     assert isinstance(done["warnings"], list)
+    assert done["device"] == "cpu"  # the device that ran it (the spec asks for the CPU)
     names = [a["name"] for a in done["artifacts"]]
     glb = next(n for n in names if n.endswith("_mesh.glb"))
     ply = next(n for n in names if n.endswith("_mesh.ply"))

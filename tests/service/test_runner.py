@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
+from shsas_core.report import load_report
 from worker.runner import execute_job, job_paths
 from worker.settings import Settings
 from worker.store import JobStore, jobs
@@ -71,6 +72,8 @@ def test_success_writes_artifacts_and_removes_stale_tmp(env) -> None:
     done = store.get(job.id)
     assert done.status == "succeeded" and done.attempts == 1 and done.progress == 1.0
     assert done.artifacts and all((out_dir / a).is_file() for a in done.artifacts)
+    # the status and the report say which device ran it (a "cpu" spec here; "auto" on a GPU worker)
+    assert done.device == "cpu" and load_report(out_dir / "report.json").device == "cpu"
     assert not list(out_dir.rglob("*.tmp*"))
     assert execute_job(store, settings, job.id, "w2") == "skipped"  # a duplicate delivery does nothing
 

@@ -67,6 +67,15 @@ def test_warnings_ride_with_the_metrics(store: JobStore) -> None:
     assert [j.warnings for j in store.list_jobs(job.owner)[0] if j.id == job.id] == [[warn]]
 
 
+def test_the_device_rides_with_the_metrics(store: JobStore) -> None:
+    job, _ = new_job(store)
+    assert store.claim(job.id, "w") is not None
+    assert store.get(job.id).device is None
+    assert store.finish(job.id, "w", "succeeded", metrics={"reed": {"points": 9.0}}, device="cuda:0 (NVIDIA H100)")
+    done = store.get(job.id)
+    assert done.device == "cuda:0 (NVIDIA H100)" and done.metrics == {"reed": {"points": 9.0}}
+
+
 def test_an_undefined_metric_is_null_end_to_end(store: JobStore) -> None:
     """None from the pipeline is JSON null in the table and None when read back (not NaN)."""
     job, _ = new_job(store)

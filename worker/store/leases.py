@@ -11,6 +11,7 @@ import sqlalchemy as sa
 
 from .base import StoreBase
 from .records import (
+    DEVICE_KEY,
     TERMINAL,
     WARNINGS_KEY,
     Job,
@@ -71,10 +72,11 @@ class Leases(StoreBase):
 
     def finish(self, job_id: str, worker_id: str, status: str, *, error: str | None = None,
                artifacts: list[str] | None = None, metrics: dict | None = None,
-               warnings: list[dict[str, Any]] | None = None) -> bool:
+               warnings: list[dict[str, Any]] | None = None, device: str | None = None) -> bool:
         """Move a running job this worker leases to a terminal status. False if the lease was lost.
 
-        ``warnings`` (see :attr:`Job.warnings`) are stored with the metrics.
+        ``warnings`` (see :attr:`Job.warnings`) and ``device`` (:attr:`Job.device`) are stored
+        with the metrics.
         """
         if status not in TERMINAL:
             raise ValueError(f"not a terminal status: {status}")
@@ -87,6 +89,8 @@ class Leases(StoreBase):
             values["artifacts"] = json.dumps(artifacts)
         if warnings:
             metrics = {**(metrics or {}), WARNINGS_KEY: warnings}
+        if device:
+            metrics = {**(metrics or {}), DEVICE_KEY: device}
         if metrics is not None:
             values["metrics"] = json.dumps(metrics)
         with self._tx() as conn:

@@ -67,6 +67,8 @@ LOCAL_OWNER = "local"
 #: names never start with "_"), so existing databases need no new column; :meth:`Job.from_row`
 #: takes it out again, and rows written before it existed read as "no warnings".
 WARNINGS_KEY = "_warnings"
+#: Likewise the device that ran a finished job (``shsas_core.device.describe_device``).
+DEVICE_KEY = "_device"
 KEY_PREFIX = "shsas_"
 
 
@@ -101,6 +103,9 @@ class Job:
     #: signs that the result failed: ``{"method", "code", "message", "measure", "limit"}`` each
     #: (``shsas_core.diagnostics.ResultWarning`` plus the method); stored inside ``metrics``
     warnings: list[dict[str, Any]] = field(default_factory=list)
+    #: the device that ran the job (``cpu``, ``cuda:0 (card)``); stored inside ``metrics``; None
+    #: until the job succeeded, and for rows written before it was recorded
+    device: str | None = None
 
     @classmethod
     def from_row(cls, row: sa.Row) -> Job:
@@ -110,6 +115,7 @@ class Job:
         m["artifacts"] = json.loads(m["artifacts"] or "[]")
         metrics = json.loads(m["metrics"]) if m["metrics"] else None
         m["warnings"] = list(metrics.pop(WARNINGS_KEY, None) or []) if metrics else []
+        m["device"] = metrics.pop(DEVICE_KEY, None) if metrics else None
         if metrics:  # rows written before undefined metrics were None hold the text NaN
             metrics = {meth: {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                               for k, v in d.items()} for meth, d in metrics.items()}
