@@ -14,7 +14,9 @@ its own. Usage:
     python benchmarks/bench_train.py [--device cpu|cuda] [--cases cpu,paper] [--iters N]
         [--threads T] [--encoding cpu|paper_gpu] [--no-native] [--no-heap-cache]
 
-Cases: ``cpu`` = 1 ping x 64 bins x 1024 rays, ``paper`` = 1 ping x 200 bins x 4800 rays; L = 3.
+Cases: ``cpu`` = 1 ping x 64 bins x 1024 rays, ``paper`` = 1 ping x 200 bins x 4800 rays,
+``tiny`` = 1 ping x 8 bins x 32 rays (smoke runs); L = 3. ``--field-backend`` replaces the
+field's backend of a mode (any of ``FieldConfig.backend``; ``benchmarks/bench_gpu.py`` times each).
 ``--renderer-only`` swaps the neural field for a cheap analytic one (a Gaussian shell with
 autograd normals) to time the renderer's own part (intersection, transmittance, quadrature).
 Prints a table; never asserts.
@@ -29,7 +31,7 @@ import subprocess
 import sys
 import time
 
-CASES = {"cpu": (64, 1024), "paper": (200, 4800)}
+CASES = {"cpu": (64, 1024), "paper": (200, 4800), "tiny": (8, 32)}
 
 
 def _one(args: argparse.Namespace) -> dict:
@@ -68,7 +70,7 @@ def _one(args: argparse.Namespace) -> dict:
         field = _ShellField().to(dev)
     else:
         field = SHField(FieldConfig(sh_degree=3, encoding=encoding_preset(args.encoding), scene_box=box,
-                                    backend="native" if fast else "reference")).to(dev)
+                                    backend=args.field_backend or ("native" if fast else "reference"))).to(dev)
     # (render's uniform_fraction=1.0 was given here before, and TrainConfig replaced it with its own
     # 0.1 without a word; it is now an error, and the bench keeps measuring what it always measured)
     cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device, render=RenderConfig(backend="fast" if fast else "reference"))
@@ -107,7 +109,8 @@ def _one(args: argparse.Namespace) -> dict:
         import resource
 
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    return {"case": args.case, "mode": args.mode, "points": bins * rays, "ms_median": 1e3 * float(np.median(times)),
+    return {"case": args.case, "mode": args.mode, "field_backend": None if args.renderer_only else field.cfg.backend,
+            "points": bins * rays, "ms_median": 1e3 * float(np.median(times)),
             "ms_min": 1e3 * float(np.min(times)), "peak_mib": peak}
 
 
@@ -151,6 +154,8 @@ def main() -> None:
                     help="leave glibc's malloc defaults (large buffers mmapped and unmapped every iteration)")
     ap.add_argument("--no-native", action="store_true",
                     help="fast path without the C encoding kernel (SHSAS_NATIVE=0: the PyTorch fused ops)")
+    ap.add_argument("--field-backend", help="FieldConfig.backend of the timed mode (default: native for fast, "
+                    "reference for eager)")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--mode", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -180,6 +185,7 @@ def main() -> None:
             cmd = [sys.executable, __file__, "--case", case, "--mode", mode, "--device", args.device,
                    "--iters", str(args.iters), "--warmup", str(args.warmup), "--threads", str(args.threads),
                    "--encoding", args.encoding] + (["--renderer-only"] if args.renderer_only else []) \
+                + (["--field-backend", args.field_backend] if args.field_backend else []) \
                 + (["--no-heap-cache"] if args.no_heap_cache else [])
             out = subprocess.run(cmd, capture_output=True, text=True)
             if out.returncode != 0:

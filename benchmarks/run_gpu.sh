@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
-# One lease of a lent GPU machine (issue 17): the CUDA tests, then the GPU benchmarks, each
+# One lease of a lent GPU machine: the CUDA tests, then the GPU benchmarks, each
 # logged under $OUT (default ./gpu_out). Steps are named on the command line so that one call
 # of the device tool can run the ones that fit its time:
 #
 #   benchmarks/run_gpu.sh tests bp train          # default: all three
 #   benchmarks/run_gpu.sh bp_full fidelity
+#   benchmarks/run_gpu.sh record                  # again and again until the record says finished
 #
 # The device machine has PyTorch but not this project's other wheels; carry them in .whl/
 # (docs/results.md, "GPU"). Nothing here asserts a speed: the benchmarks print figures.
@@ -57,6 +58,11 @@ for step in "${steps[@]}"; do
         print(json.dumps({**p, 'iters': int('${PAPER_ITERS:-3000}')}))")
       timeout 170 $PY benchmarks/bench_fidelity.py --regimes dense --scenes bunny --methods shsas \
         --device cuda --dev-spec "$spec" --out /tmp/fidelity 2>&1 | tail -40 | tee "$OUT/paper.txt" ;;
+    record)  # the GPU record: paper_batch_ms per backend, the 50k paper fit (resumed call by call:
+      # the checkpoints stay in benchmarks/out/gpu on a warm machine), its scores beside the defaults
+      timeout 590 $PY benchmarks/bench_gpu.py --device cuda --budget-s "${BUDGET_S:-520}" \
+        --out benchmarks/results 2>&1 | tee "$OUT/record.txt"
+      cp benchmarks/results/gpu-*.json "$OUT/" 2>/dev/null ;;
     train)
       timeout 300 $PY benchmarks/bench_train.py --device cuda --cases cpu,paper --iters 50 \
         --warmup 10 2>&1 | tee "$OUT/train.txt" ;;
