@@ -7,7 +7,8 @@ Modes: ``eager`` (reference: Python loop over levels, normals by double backward
 (batched encoding in PyTorch ops + analytic normals, ``FieldConfig(backend="fused")``),
 ``fast`` (the default, ``backend="native"``: ``fused`` with the encoding in the C kernel on a
 float32 CPU, else the same as ``fused``), ``compiled`` (``backend="compiled"``: the fused
-encoding kernels through torch.compile).
+encoding kernels through torch.compile), and by name only ``triton`` (``backend="triton"``: the
+encoding in the Triton kernel; on CUDA ``fast`` is the same).
 
 Timing: all modes live in one process and their steps are interleaved round by round, so a
 load spike on a shared machine hits every mode alike; min and median over the rounds are
@@ -37,6 +38,8 @@ from shsas_core.fields import FieldConfig, SHField, encoding_preset
 
 SIZES = (64 * 1024, 200 * 4800)
 MODES = ("eager", "fused", "fast", "compiled")
+#: Modes asked for by name only: ``triton`` runs on CUDA (on a CPU only under TRITON_INTERPRET=1).
+EXTRA_MODES = ("triton",)
 
 
 def _rss_mb() -> float:
@@ -46,7 +49,8 @@ def _rss_mb() -> float:
 
 def _make(mode: str, preset: str, degree: int, dev: torch.device) -> SHField:
     torch.manual_seed(0)  # same parameters in every mode
-    backend = {"eager": "reference", "fused": "fused", "fast": "native", "compiled": "compiled"}[mode]
+    backend = {"eager": "reference", "fused": "fused", "fast": "native", "compiled": "compiled",
+               "triton": "triton"}[mode]
     cfg = FieldConfig(sh_degree=degree, encoding=encoding_preset(preset), backend=backend)
     return SHField(cfg).to(dev)
 
@@ -120,7 +124,7 @@ def main() -> None:
     ap.add_argument("--degree", type=int, default=3)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--modes", nargs="*", choices=list(MODES), default=list(MODES))
+    ap.add_argument("--modes", nargs="*", choices=[*MODES, *EXTRA_MODES], default=list(MODES))
     ap.add_argument("--no-memory", action="store_true", help="skip the per-mode memory subprocesses")
     ap.add_argument("--memory-one", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--timing-one", action="store_true", help=argparse.SUPPRESS)
