@@ -33,6 +33,9 @@ LONG_SPEC = {"methods": "shsas", "iters": "100000", "grid": "16", "device": "cpu
 #: Share of the viewer's pixels that must differ from the empty canvas once the mesh is shown.
 MIN_DRAWN_SHARE = 0.05
 JOB_TIMEOUT_MS = 180_000
+#: Share of a frame's pixels that must be dark (text) for it to count as showing something: a
+#: page of text inks a few percent of its pixels, a blank frame none.
+MIN_TEXT_SHARE = 0.005
 DOCS_IMG = REPO / "docs" / "img"
 
 
@@ -120,6 +123,13 @@ def job_row(page, status: str | None = None):
 
 def progress_of(row) -> float:
     return float(row.get_attribute("data-progress"))
+
+
+def dark_share(png: bytes) -> float:
+    """Share of the pixels of a screenshot darker than mid-grey (text on a light page)."""
+    from PIL import Image
+
+    return float((np.asarray(Image.open(io.BytesIO(png)).convert("L")) < 128).mean())
 
 
 def shot(page, name: str, tmp: Path, **kw) -> bytes:
@@ -247,6 +257,14 @@ def test_demo_job_result_view(ui, server) -> None:
     page.click("#artifacts a:text-is('report.html')")
     page.wait_for_selector("#report-frame:not([hidden])")
     assert page.get_attribute("#report-frame", "sandbox") == ""
+    # ... and shows it: the frame's pixels carry the report's text, not a blank white box
+    frame = page.frame_locator("#report-frame")
+    frame.locator("h1").wait_for()
+    assert frame.locator("h1").inner_text() == "shsas reconstruction report"
+    page.wait_for_function("() => true", polling=500)  # one more frame painted
+    ink = dark_share(page.locator("#report-frame").screenshot())
+    assert ink > MIN_TEXT_SHARE, f"the report frame looks blank ({ink:.4f} of its pixels are dark)"
+    shot(page, "console-report.png", server["tmp"], clip=page.locator("#report-frame").bounding_box())
 
     # a phone-sized window: one column, nothing wider than the screen
     page.set_viewport_size({"width": 390, "height": 844})

@@ -41,7 +41,6 @@ export class ResultView {
     $("result-body").hidden = false;
     $("result-hint").hidden = true;
     $("report-frame").hidden = true;
-    $("report-frame").srcdoc = "";
     $("result-h").textContent = `Result of ${job.id.slice(0, 8)}`;
     this.viewer.resize();
     this.viewer.clear();
@@ -151,10 +150,15 @@ export class ResultView {
 
   async download(a) {
     if (a.name.endsWith(".html")) {
-      // shown in a sandboxed frame: a report is made from user data and must not run script here
-      const frame = $("report-frame");
-      frame.srcdoc = await api(a.url, { as: "text" });
-      frame.hidden = false;
+      // shown in a sandboxed frame: a report is made from user data and must not run script here.
+      // A new frame each time: Chromium leaves a frame whose srcdoc was replaced while it was
+      // hidden unpainted (a blank white box although its document is there).
+      const html = await api(a.url, { as: "text" });
+      const old = $("report-frame");
+      const frame = Object.assign(document.createElement("iframe"), { id: old.id, title: old.title, srcdoc: html });
+      frame.setAttribute("sandbox", "");
+      old.replaceWith(frame);
+      frame.scrollIntoView({ block: "nearest" });
       frame.focus();
       return;
     }
