@@ -47,6 +47,10 @@ jobs = sa.Table(
     sa.Column("metrics", sa.Text, nullable=True),
     sa.Column("idempotency_key", sa.String(200), nullable=True),
     sa.Column("request_digest", sa.String(64), nullable=True),
+    # Added after the first release: nullable, so ``migrate.add_missing_columns`` can add them
+    # to an existing table (rows from before read as None).
+    sa.Column("client_name", sa.String(255), nullable=True),
+    sa.Column("label", sa.String(200), nullable=True),
     sa.UniqueConstraint("owner", "idempotency_key", name="uq_shsas_jobs_owner_idem"),
     sa.Index("ix_shsas_jobs_owner_created", "owner", "created_at"),
     sa.Index("ix_shsas_jobs_status_heartbeat", "status", "heartbeat_at"),
@@ -101,6 +105,10 @@ class Job:
     #: signs that the result failed: ``{"method", "code", "message", "measure", "limit"}`` each
     #: (``shsas_core.diagnostics.ResultWarning`` plus the method); stored inside ``metrics``
     warnings: list[dict[str, Any]] = field(default_factory=list)
+    #: the survey's file name as the client sent it (None for rows from before it was kept)
+    client_name: str | None = None
+    #: the operator's free-text name for the job
+    label: str | None = None
 
     @classmethod
     def from_row(cls, row: sa.Row) -> Job:
