@@ -37,6 +37,8 @@ JOB_TIMEOUT_MS = 180_000
 #: page of text inks a few percent of its pixels, a blank frame none.
 MIN_TEXT_SHARE = 0.005
 DOCS_IMG = REPO / "docs" / "img"
+#: Jobs on one page of the console's list (web/src/jobs.js, PAGE_SIZE).
+PAGE_SIZE = 20
 
 
 def _need(what: str) -> None:
@@ -158,14 +160,26 @@ def test_upload_progress_cancel_delete(ui, server) -> None:
     first = progress_of(row)
     page.wait_for_function("([id, p]) => Number(document.querySelector(`li.job[data-job-id='${id}']`)"
                            ".dataset.progress) > p", arg=[job_id, first], timeout=JOB_TIMEOUT_MS)
-    assert "attempts 1" in page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
+    meta = page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
+    assert "running for" in meta and "shsas" in meta, meta  # elapsed time, methods
+    assert page.inner_text(f"li.job[data-job-id='{job_id}'] .title") == server["demo"].name  # the file's name
     shot(page, "console-running.png", server["tmp"])
     page.click(f"li.job[data-job-id='{job_id}'] button.cancel")
     page.wait_for_selector(f"li.job[data-job-id='{job_id}'][data-status=cancelled]", timeout=JOB_TIMEOUT_MS)
     assert httpx.get(f"{server['base']}/reconstructions/{job_id}").json()["status"] == "cancelled"
     # delete: DELETE /reconstructions/{id} (a server without it answers 405 and the page says so)
     supported = "delete" in httpx.get(f"{server['base']}/openapi.json").json()["paths"]["/reconstructions/{job_id}"]
+    # Delete asks first, saying it is permanent; "Keep it" keeps the job
     page.click(f"li.job[data-job-id='{job_id}'] button.delete")
+    page.wait_for_selector("#confirm-delete[open]")
+    assert "cannot be undone" in page.inner_text("#confirm-delete") and job_id[:8] in page.inner_text("#confirm-delete")
+    page.click("#confirm-delete button[value=keep]")
+    page.wait_for_selector("#confirm-delete", state="hidden")
+    page.wait_for_timeout(1500)  # a delete would have been sent by now; the list polls every second
+    assert httpx.get(f"{server['base']}/reconstructions/{job_id}").status_code == 200
+    assert page.query_selector(f"li.job[data-job-id='{job_id}']") is not None
+    page.click(f"li.job[data-job-id='{job_id}'] button.delete")
+    page.click("#confirm-delete-yes")
     if supported:
         page.wait_for_selector(f"li.job[data-job-id='{job_id}']", state="detached", timeout=30_000)
         assert httpx.get(f"{server['base']}/reconstructions/{job_id}").status_code == 404
@@ -189,6 +203,7 @@ def test_demo_job_result_view(ui, server) -> None:
     before = {j["id"] for j in httpx.get(base + "/reconstructions").json()["items"]}
     page.set_input_files("#survey-input", str(server["demo"]))
     fill_spec(page, DEMO_SPEC)
+    page.fill("#label-input", "demo sphere, pass 1")
     page.click("#submit-btn")
     page.wait_for_selector("#retry-btn:not([hidden])")
     assert "dropped" in page.inner_text("#upload-status")
@@ -197,8 +212,31 @@ def test_demo_job_result_view(ui, server) -> None:
     new = [j for j in httpx.get(base + "/reconstructions").json()["items"] if j["id"] not in before]
     assert len(new) == 1 and dropped, new
     job_id = new[0]["id"]
-    page.wait_for_selector(f"li.job[data-job-id='{job_id}'][data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
-    page.click(f"li.job[data-job-id='{job_id}'] button.open")
+    assert new[0]["label"] == "demo sphere, pass 1" and new[0]["input"]["filename"] == server["demo"].name
+    row = f"li.job[data-job-id='{job_id}']"
+    page.wait_for_selector(f"{row}[data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
+    assert page.inner_text(f"{row} .title") == "demo sphere, pass 1"
+    assert page.inner_text(f"{row} .file") == server["demo"].name
+    assert page.inner_text(f"{row} .meta").startswith("ran ")  # how long it ran
+    # "View result" from a list scrolled down: the result comes into view with the focus, at
+    # its own address, and the list beside it does not move
+    page.evaluate("window.scrollTo(0, document.body.scrollHeight)")
+    jobs_top = page.evaluate("document.querySelector('#jobs').getBoundingClientRect().top + window.scrollY")
+    page.click(f"{row} .open")
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    assert page.url.endswith(f"/#/jobs/{job_id}")
+    assert page.evaluate("document.activeElement.id") == "result-h"
+    box = page.locator("#viewer").bounding_box()
+    assert 0 <= box["y"] < 800 - 100, f"the 3-D view is off-screen (top at {box['y']:.0f} px)"
+    assert page.evaluate("document.querySelector('#jobs').getBoundingClientRect().top + window.scrollY") == jobs_top
+    # reload, back and forward: the address reopens the job
+    page.reload()
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    assert "demo sphere, pass 1" in page.inner_text("#result-h")
+    page.go_back()
+    page.wait_for_selector("#result-hint:not([hidden])")
+    assert page.is_hidden("#result-body")
+    page.go_forward()
     page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
 
     # the viewer draws the mesh: compare with the same canvas with every layer hidden
@@ -275,7 +313,10 @@ def test_demo_job_result_view(ui, server) -> None:
 
 def test_errors_shown_beside_their_fields(ui, server) -> None:
     page = ui.page
-    # a malformed survey, dropped on the drop zone: the API's message under the file field
+    posts: list[str] = []
+    page.on("request", lambda r: posts.append(r.url) if r.method == "POST" else None)
+    # a file that is no survey, dropped on the drop zone: refused from its first bytes, before
+    # any upload, with the message under the file field and in the list of problems
     page.evaluate("""() => {
         const dt = new DataTransfer();
         dt.items.add(new File(['this is not a survey\\n'.repeat(50)], 'notes.txt', {type: 'text/plain'}));
@@ -285,16 +326,133 @@ def test_errors_shown_beside_their_fields(ui, server) -> None:
     page.click("#submit-btn")
     page.wait_for_function("() => document.querySelector('#err-survey').textContent.length > 0", timeout=60_000)
     assert "not a recognised survey" in page.inner_text("#err-survey")
+    assert "not a recognised survey" in page.inner_text("#submit-errors")
+    assert posts == [], posts
+    # an emptied numeric field is flagged, not sent as its default
+    page.set_input_files("#survey-input", str(server["demo"]))
+    page.fill("#spec-iters", "")
+    page.fill("#spec-sh_degree", "")
+    page.click("#submit-btn")
+    page.wait_for_selector("#submit-errors:not([hidden])")
+    assert page.inner_text("#err-spec-iters").startswith("iters: empty")
+    assert page.inner_text("#err-spec-sh_degree").startswith("sh_degree: empty")
+    listed = page.eval_on_selector_all("#submit-errors li", "lis => lis.map(li => li.textContent)")
+    assert [t.split(":")[0] for t in listed] == ["sh_degree", "iters"], listed
+    assert page.evaluate("document.activeElement.id") == "spec-sh_degree" and posts == []
+    page.reload()
+    page.wait_for_selector("#spec-grid")
     # a spec value over its limit: the API's message beside that field, which gets the focus
     page.set_input_files("#survey-input", str(server["demo"]))
     fill_spec(page, {"grid": "9999"})
+    posts.clear()
     page.click("#submit-btn")
     page.wait_for_function("() => document.querySelector('#err-spec-grid').textContent.length > 0", timeout=60_000)
+    assert len(posts) == 1  # this one went to the server, which refused it
     msg = page.inner_text("#err-spec-grid")
     assert msg.startswith("spec.grid") and "512" in msg
     assert page.evaluate("document.activeElement.id") == "spec-grid"
     assert page.inner_text("#err-spec-iters") == "" and page.inner_text("#err-survey") == ""
+    assert page.inner_text("#submit-errors li").startswith("spec.grid")  # every refusal listed in view
     shot(page, "console-error.png", server["tmp"])
+
+
+def insert_jobs(server, n: int) -> list[str]:
+    """``n`` finished jobs (every third failed, the rest cancelled) straight into the server's job
+    store, as submissions of the keyless owner would leave them, plus one running job held by a
+    worker elsewhere (fresh heartbeat) older than all of them. Returns the ids, running one first."""
+    import json
+    import time
+    import uuid
+
+    from worker.store import LOCAL_OWNER, JobStore, jobs
+
+    store = JobStore(f"sqlite:///{Path(server['env']['SHSAS_DATA_DIR']) / 'shsas.db'}")
+    now = time.time()
+    rows, ids = [], []
+    for i in range(n + 1):
+        running = i == n
+        status = "running" if running else "failed" if i % 3 == 0 else "cancelled"
+        jid = uuid.uuid4().hex
+        ids.append(jid)
+        rows.append({"id": jid, "owner": LOCAL_OWNER, "spec": json.dumps({"methods": ["backprojection"]}),
+                     "input_digest": "0" * 64, "input_name": "survey.h5", "input_bytes": 1, "queue": "cpu",
+                     "status": status, "progress": 0.5 if running else 0.0, "attempts": 1,
+                     "cancel_requested": False, "created_at": now - 3600 + (0 if running else i),
+                     "started_at": now - 3600, "finished_at": None if running else now - 60,
+                     "updated_at": now, "artifacts": "[]", "error": "inserted by the test" if status == "failed" else None,
+                     "client_name": f"scan-{i:03d}.h5", "label": "held elsewhere" if running else None,
+                     "lease_owner": "elsewhere" if running else None,
+                     "heartbeat_at": now + 86400 if running else None})  # never stale within the test
+    with store.engine.begin() as conn:
+        conn.execute(jobs.insert(), rows)
+    store.dispose()
+    return [ids[-1], *ids[:-1]]
+
+
+def remove_jobs(server, ids: list[str]) -> None:
+    from worker.store import JobStore
+
+    store = JobStore(f"sqlite:///{Path(server['env']['SHSAS_DATA_DIR']) / 'shsas.db'}")
+    for jid in ids:
+        store.delete(jid)
+    store.dispose()
+
+
+def listed_ids(page) -> list[str]:
+    return page.eval_on_selector_all("li.job", "lis => lis.map(li => li.dataset.jobId)")
+
+
+def walk_pages(page) -> list[str]:
+    """Every job id the list shows, page by page with "Older", from the first page."""
+    seen = listed_ids(page)
+    while page.is_enabled("#jobs-older"):
+        before = page.inner_text("#jobs-page")
+        page.click("#jobs-older")
+        page.wait_for_function("t => document.querySelector('#jobs-page').textContent !== t", arg=before)
+        page.wait_for_function("() => document.querySelectorAll('li.job').length > 0")
+        seen += listed_ids(page)
+    return seen
+
+
+def test_every_job_reachable_by_paging_filter_and_search(ui, server) -> None:
+    page, base = ui.page, server["base"]
+    ids = insert_jobs(server, 120)
+    try:
+        everything, cursor = [], None
+        while True:  # what the API holds for this owner: the 121 jobs plus the other tests'
+            got = httpx.get(base + "/reconstructions", params={"limit": 100, **({"cursor": cursor} if cursor else {})}).json()
+            everything += [j["id"] for j in got["items"]]
+            if not (cursor := got["next_cursor"]):
+                break
+        page.reload()
+        page.wait_for_function("n => document.querySelectorAll('li.job').length === n", arg=PAGE_SIZE)
+        assert listed_ids(page)[0] == ids[0]  # the running job first, although it is the oldest
+        assert "running" in page.inner_text(f"li.job[data-job-id='{ids[0]}'] .meta")
+        shot(page, "console-list.png", server["tmp"])
+        walked = walk_pages(page)
+        assert len(walked) == len(set(walked)) and set(walked) == set(everything) and set(ids) <= set(walked)
+        # back to newer pages
+        page.click("#jobs-newer")
+        last = (len(everything) + PAGE_SIZE - 1) // PAGE_SIZE
+        page.wait_for_function("t => document.querySelector('#jobs-page').textContent === t", arg=f"page {last - 1}")
+        # a status filter: only the failed ones, every one of them, across pages
+        page.select_option("#jobs-status", "failed")
+        page.wait_for_function("() => document.querySelector('#jobs-page').textContent === 'page 1' && "
+                               "[...document.querySelectorAll('li.job')].every(li => li.dataset.status === 'failed')")
+        failed = walk_pages(page)
+        want = {j["id"] for j in httpx.get(base + "/reconstructions", params={"status": "failed", "limit": 100}).json()["items"]}
+        assert set(failed) == want and len(failed) == len(want) >= 40
+        # a text search, over the uploaded file names, combined with the filter
+        page.select_option("#jobs-status", "")
+        page.fill("#jobs-search", "SCAN-07")
+        page.wait_for_function("() => document.querySelectorAll('li.job').length === 10")
+        assert sorted(page.eval_on_selector_all("li.job .title", "ts => ts.map(t => t.textContent)")) == [
+            f"scan-{i:03d}.h5" for i in range(70, 80)]
+        page.fill("#jobs-search", "no such job")
+        page.wait_for_selector("#jobs-empty:not([hidden])")
+        assert page.inner_text("#jobs-empty") == "No job matches this filter."
+    finally:
+        remove_jobs(server, ids)
 
 
 def test_page_loads_nothing_from_elsewhere(ui, server) -> None:

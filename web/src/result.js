@@ -3,6 +3,7 @@
 // from report.html, the survey plot, and every artifact.
 
 import { api } from "./api.js";
+import { jobTitle } from "./jobs.js";
 import { plotPings, plotSurvey } from "./survey.js";
 
 const METRIC_COLUMNS = ["threshold", "points", "faces", "seconds", "pc_chamfer_l2", "pc_fscore", "pc_iou",
@@ -34,14 +35,57 @@ export class ResultView {
     $("iso-method").addEventListener("change", () => this.syncSlider());
   }
 
-  async open(job) {
-    this.job = job;
+  /** Show job ``id`` (the route #/jobs/{id}); ``focus``: bring it into view and move focus there. */
+  async show(id, { compare = false, focus = false } = {}) {
     this.gen = (this.gen || 0) + 1;
     const gen = this.gen;
-    $("result-body").hidden = false;
+    this.waitingFor = null;
     $("result-hint").hidden = true;
+    $("result-h").textContent = `Result of ${id.slice(0, 8)}`;
+    if (focus) this.bringIntoView();
+    const job = await api(`/reconstructions/${id}`);
+    if (gen !== this.gen) return;
+    $("result-h").textContent = `Result of ${jobTitle(job)}`;
+    if (job.status !== "succeeded") {
+      // reachable by its address at any time; the result appears here once it succeeded
+      $("result-body").hidden = true;
+      this.job = null;
+      $("result-state").textContent = ["queued", "running"].includes(job.status)
+        ? `This job is ${job.status}; its result appears here when it has finished.`
+        : `This job ${job.status === "failed" ? "failed" : "was cancelled"}; it has no result.${job.error ? ` ${job.error}` : ""}`;
+      if (["queued", "running"].includes(job.status)) this.waitingFor = job.id;
+      return;
+    }
+    $("result-state").textContent = "";
+    if (this.job?.id === job.id && this.loaded) return; // already shown (e.g. back from compare)
+    await this.open(job, gen);
+  }
+
+  bringIntoView() {
+    // the heading, not the 3-D view, takes the focus: a screen reader starts at the title
+    $("result").scrollIntoView({ block: "start" });
+    $("result-h").focus({ preventScroll: true });
+  }
+
+  close() {
+    this.gen = (this.gen || 0) + 1;
+    this.job = null;
+    this.loaded = false;
+    this.waitingFor = null;
+    this.viewer.clear();
+    $("result-body").hidden = true;
+    $("result-hint").hidden = false;
+    $("result-state").textContent = "";
+    $("result-h").textContent = "Result";
+    delete document.body.dataset.viewerReady;
+  }
+
+  async open(job, gen) {
+    delete document.body.dataset.viewerReady;
+    this.job = job;
+    this.loaded = false;
+    $("result-body").hidden = false;
     $("report-frame").hidden = true;
-    $("result-h").textContent = `Result of ${job.id.slice(0, 8)}`;
     this.viewer.resize();
     this.viewer.clear();
     $("layers").replaceChildren(Object.assign(document.createElement("legend"), { textContent: "Show" }));
@@ -75,6 +119,7 @@ export class ResultView {
     if (gen !== this.gen) return;
     this.viewer.frame();
     $("iso-status").textContent = this.status(report.methods.find((m) => m.method === $("iso-method").value));
+    this.loaded = true;
     document.body.dataset.viewerReady = job.id; // for tests: every layer is in the scene
   }
 
@@ -164,7 +209,9 @@ export class ResultView {
     }
     const blob = await api(a.url, { as: "blob" });
     const url = URL.createObjectURL(blob);
-    const tmp = Object.assign(document.createElement("a"), { href: url, download: a.name });
+    // saved under the uploaded survey's name, as the server's Content-Disposition says
+    const stem = (this.job?.input?.filename || "").replace(/^.*[\\/]/, "").replace(/\.[^.]*$/, "").trim();
+    const tmp = Object.assign(document.createElement("a"), { href: url, download: stem ? `${stem}_${a.name}` : a.name });
     document.body.append(tmp);
     tmp.click();
     tmp.remove();
