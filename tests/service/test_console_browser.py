@@ -10,6 +10,7 @@ context (the server's "internet" is blocked); each test ends by checking that lo
 from __future__ import annotations
 
 import io
+import json
 import os
 import subprocess
 from collections.abc import Iterator
@@ -29,6 +30,10 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 #: The demo job: one quick method on a small grid; the long one is cancelled mid-run.
 DEMO_SPEC = {"methods": "backprojection", "grid": "32", "device": "cpu"}
+#: Three methods, quickly: the neural fields start from nothing and take a few steps (the panes
+#: need three results, not good ones).
+COMPARE_SPEC = {"methods": ["backprojection", "reed", "shsas"], "grid": 24, "iters": 20, "init": "none",
+                "num_rays": 16, "num_bins": 8, "device": "cpu"}
 LONG_SPEC = {"methods": "shsas", "iters": "100000", "grid": "16", "device": "cpu", "num_rays": "16", "num_bins": "8"}
 #: Share of the viewer's pixels that must differ from the empty canvas once the mesh is shown.
 MIN_DRAWN_SHARE = 0.05
@@ -309,6 +314,60 @@ def test_demo_job_result_view(ui, server) -> None:
     assert page.evaluate("document.documentElement.scrollWidth") <= 391
     page.evaluate("window.scrollTo(0, 0)")
     shot(page, "console-phone.png", server["tmp"])
+
+
+def test_compare_panes_move_together(ui, server) -> None:
+    """A job's methods side by side at #/jobs/{id}/compare, one pane each, one camera for all;
+    the first view is drawn from the worker's light previews, the full files one click away."""
+    page, base = ui.page, server["base"]
+    with open(server["demo"], "rb") as fh:
+        r = httpx.post(base + "/reconstructions", files={"survey": ("demo.h5", fh)},
+                       data={"spec": json.dumps(COMPARE_SPEC), "label": "three methods"}, timeout=120)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    fetched: list[str] = []
+    page.on("requestfinished", lambda req: fetched.append(req.url.split("?")[0]))
+    row = f"li.job[data-job-id='{job_id}']"
+    page.wait_for_selector(f"{row}[data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
+    page.click(f"{row} .compare")
+    page.wait_for_selector(f"body[data-compare-ready='{job_id}']", state="attached", timeout=60_000)
+    assert page.url.endswith(f"/#/jobs/{job_id}/compare")
+    assert page.eval_on_selector_all("#compare-panes figcaption", "fs => fs.map(f => f.textContent.split(' —')[0])") == [
+        "backprojection", "Reed et al. (SH degree 0)", "SH-SAS"]
+    cams = "() => window.shsasConsole.result.panes.map(v => v.camera.position.toArray())"
+    before = page.evaluate(cams)
+    assert all(np.allclose(c, before[0]) for c in before)  # framed alike
+    # drag in the second pane: every pane turns the same way
+    box = page.locator("#compare-panes canvas").nth(1).bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] / 2 + 120, box["y"] + box["height"] / 2 + 30, steps=8)
+    page.mouse.up()
+    after = page.evaluate(cams)
+    assert not np.allclose(after[1], before[1], atol=1e-4), "the drag did not move the camera"
+    for c in after:
+        assert np.allclose(c, after[1], atol=1e-9), after
+    # the wheel in the first pane zooms all of them
+    box0 = page.locator("#compare-panes canvas").nth(0).bounding_box()
+    page.mouse.move(box0["x"] + 50, box0["y"] + 50)
+    page.mouse.wheel(0, 300)
+    page.wait_for_function("() => { const p = window.shsasConsole.result.panes.map(v => v.camera.position.toArray());"
+                           " return p.every(c => c.every((x, k) => Math.abs(x - p[0][k]) < 1e-9)); }")
+    zoomed = page.evaluate(cams)
+    assert not np.allclose(zoomed[0], after[0], atol=1e-4)
+    shot(page, "console-compare.png", server["tmp"])
+    # the first view came from the previews, not the full files
+    glbs = [u.rsplit("/", 1)[1] for u in fetched if u.endswith(".glb") and "/artifacts/" in u]
+    assert sorted(glbs) == sorted(f"{m}_mesh_preview.glb" for m in ("backprojection", "reed", "shsas")), glbs
+    page.click("#full-res")
+    page.wait_for_function("() => document.querySelector('#full-res').hidden")
+    page.wait_for_selector(f"body[data-compare-ready='{job_id}']", state="attached", timeout=60_000)
+    page.wait_for_function("n => performance.getEntriesByType('resource').filter(e => /_mesh\\.glb$/.test(e.name)).length >= n",
+                           arg=3)
+    # back to the single view: its own address
+    page.click("#tab-view")
+    page.wait_for_selector("#compare", state="hidden")
+    assert page.url.endswith(f"/#/jobs/{job_id}") and page.evaluate("window.shsasConsole.result.panes.length") == 0
 
 
 def test_errors_shown_beside_their_fields(ui, server) -> None:

@@ -19,7 +19,7 @@ function viridis(t) {
 }
 
 export class Viewer {
-  constructor(canvas) {
+  constructor(canvas, { main = true } = {}) {
     this.canvas = canvas;
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
@@ -38,7 +38,7 @@ export class Viewer {
     this.origin = null; // survey-frame point placed at the scene origin (float32 precision)
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
-    window.__shsasViewer = this; // for the browser tests: what the scene holds
+    if (main) window.__shsasViewer = this; // for the browser tests: what the scene holds
   }
 
   resize() {
@@ -134,8 +134,23 @@ export class Viewer {
   }
 
   frame() {
+    this.frameBox(this.box());
+  }
+
+  /** Place every layer relative to this survey-frame point (panes that share a camera share it). */
+  setOrigin(offset) {
+    this.origin = new THREE.Vector3(...(offset || [0, 0, 0]));
+  }
+
+  /** The box of the visible layers (empty when none). */
+  box() {
     const box = new THREE.Box3();
     for (const obj of this.layers.values()) if (obj.visible) box.expandByObject(obj);
+    return box;
+  }
+
+  /** Look at ``box`` from the default direction. */
+  frameBox(box) {
     if (box.isEmpty()) return;
     const centre = box.getCenter(new THREE.Vector3());
     const size = box.getSize(new THREE.Vector3()).length() || 1;
@@ -146,6 +161,38 @@ export class Viewer {
     this.camera.updateProjectionMatrix();
     this.controls.update();
     this.render();
+  }
+
+  /** Copy another viewer's camera (position, target, clipping) and draw. */
+  follow(other) {
+    this.camera.position.copy(other.camera.position);
+    this.camera.quaternion.copy(other.camera.quaternion);
+    this.camera.near = other.camera.near;
+    this.camera.far = other.camera.far;
+    this.camera.updateProjectionMatrix();
+    this.controls.target.copy(other.controls.target);
+    this.controls.update();
+    this.render();
+  }
+
+  /** Link the cameras of ``viewers``: moving one moves all of them the same way. */
+  static link(viewers) {
+    let busy = false; // follow() fires the followers' own change events
+    for (const v of viewers) {
+      v.controls.addEventListener("change", () => {
+        if (busy) return;
+        busy = true;
+        for (const o of viewers) if (o !== v) o.follow(v);
+        busy = false;
+      });
+    }
+  }
+
+  dispose() {
+    this.clear();
+    this.controls.dispose();
+    this.renderer.dispose();
+    this.renderer.forceContextLoss(); // a browser keeps only a few WebGL contexts
   }
 
   /** What the scene holds, for tests and the status line. */
