@@ -334,6 +334,12 @@ def test_compare_panes_move_together(ui, server) -> None:
     assert page.url.endswith(f"/#/jobs/{job_id}/compare")
     assert page.eval_on_selector_all("#compare-panes figcaption", "fs => fs.map(f => f.textContent.split(' —')[0])") == [
         "backprojection", "Reed et al. (SH degree 0)", "SH-SAS"]
+    # the pipeline's warnings stand above the views (and on the row), as the API gives them
+    warnings = httpx.get(f"{base}/reconstructions/{job_id}").json()["warnings"]
+    shown = page.eval_on_selector_all("#result-warnings li", "lis => lis.map(li => li.textContent)")
+    assert len(shown) == len(warnings) and all(w["message"] in t for w, t in zip(warnings, shown, strict=True))
+    assert page.is_visible("#result-warnings") == bool(warnings)
+    assert page.inner_text(f"{row} .warn").count("⚠") == len(warnings)
     cams = "() => window.shsasConsole.result.panes.map(v => v.camera.position.toArray())"
     before = page.evaluate(cams)
     assert all(np.allclose(c, before[0]) for c in before)  # framed alike

@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
 from urllib.parse import unquote
 
 import httpx
@@ -42,6 +44,8 @@ def test_name_and_label_kept_from_upload_to_download(server) -> None:
     assert job["label"] == "north wall, pass 2"
     done = wait_for(client, job["id"], lambda j: j["status"] in ("succeeded", "failed"), 180, "the job to end")
     assert done["status"] == "succeeded" and done["input"]["filename"] == "Harbour scan ü 42.h5"
+    done["artifacts_names"] = [a["name"] for a in done["artifacts"]]
+    assert any(n.endswith("_mesh_preview.glb") for n in done["artifacts_names"])  # the worker's previews
     listed = client.get("/reconstructions", params={"q": "HARBOUR SCAN"}).json()["items"]
     assert [j["id"] for j in listed] == [job["id"]] and listed[0]["label"] == "north wall, pass 2"
     assert [j["id"] for j in client.get("/reconstructions", params={"q": "north wall"}).json()["items"]] == [job["id"]]
@@ -51,6 +55,18 @@ def test_name_and_label_kept_from_upload_to_download(server) -> None:
     assert unquote(cd.split("filename*=UTF-8''")[1]) == "Harbour scan ü 42_report.json"
     assert 'filename="Harbour scan _ 42_report.json"' in cd  # the ASCII fallback
     assert got.json()["methods"]
+    # "download all": one zip, streamed (no Content-Length: it is made as it is sent), holding
+    # every artifact byte for byte
+    with client.stream("GET", f"/reconstructions/{job['id']}/artifacts.zip") as resp:
+        assert resp.status_code == 200 and resp.headers["content-type"] == "application/zip"
+        assert "content-length" not in resp.headers and resp.headers.get("transfer-encoding") == "chunked"
+        cd = resp.headers["content-disposition"]
+        body = b"".join(resp.iter_bytes())
+    assert cd.startswith("attachment;") and unquote(cd.split("filename*=UTF-8''")[1]) == "Harbour scan ü 42_results.zip"
+    with zipfile.ZipFile(io.BytesIO(body)) as zf:
+        assert zf.testzip() is None and sorted(zf.namelist()) == sorted(done["artifacts_names"])
+        for name in zf.namelist():
+            assert zf.read(name) == client.get(f"/reconstructions/{job['id']}/artifacts/{name}").content, name
 
 
 def test_list_filters_orders_and_refusals(server) -> None:
@@ -85,3 +101,14 @@ def test_download_name() -> None:
     assert download_name("C:\\surveys\\bay.zip", "report.html") == "bay_report.html"
     assert download_name(None, "report.html") == "report.html"
     assert download_name("...", "report.json") == "report.json"
+
+
+def test_zip_of_a_job_without_files_is_refused(server) -> None:
+    client, survey = server
+    job = post(client, survey, "q.h5", spec={**QUICK, "iters": 5}).json()
+    client.post(f"/reconstructions/{job['id']}/cancel")
+    wait_for(client, job["id"], lambda j: j["status"] in ("cancelled", "succeeded"), 120, "the job to end")
+    if client.get(f"/reconstructions/{job['id']}").json()["artifacts"]:
+        pytest.skip("the job finished before the cancel landed")
+    r = client.get(f"/reconstructions/{job['id']}/artifacts.zip")
+    assert r.status_code == 409 and "no files" in r.json()["detail"]

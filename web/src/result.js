@@ -125,6 +125,7 @@ export class ResultView {
     this.report = report;
     this.renderMetrics(report);
     this.renderArtifacts(job);
+    this.renderWarnings(job);
     this.renderMip(base);
     if (survey) this.renderSurvey(survey);
     const methods = report.methods.map((m) => m.method);
@@ -311,7 +312,24 @@ export class ResultView {
     table.innerHTML = `${head}<tbody>${rows.join("")}</tbody>`;
   }
 
+  /** The pipeline's signs that a method's result failed, above the views. */
+  renderWarnings(job) {
+    const box = $("result-warnings");
+    box.replaceChildren();
+    const ws = job.warnings || [];
+    box.hidden = ws.length === 0;
+    if (!ws.length) return;
+    const ul = document.createElement("ul");
+    for (const w of ws) ul.append(Object.assign(document.createElement("li"), { textContent: `${methodName(w.method)}: ${w.message}` }));
+    box.append(Object.assign(document.createElement("strong"), { textContent: "This result may have failed:" }), ul);
+  }
+
   renderArtifacts(job) {
+    const all = $("download-all");
+    all.onclick = (ev) => {
+      ev.preventDefault(); // the hash is the result's address; the zip comes through fetch, with the key
+      this.download({ name: "results.zip", url: `/reconstructions/${job.id}/artifacts.zip` }).catch((e) => this.onError(e, true));
+    };
     const list = $("artifacts");
     list.replaceChildren();
     for (const a of job.artifacts) {
