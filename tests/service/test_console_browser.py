@@ -316,6 +316,51 @@ def test_demo_job_result_view(ui, server) -> None:
     shot(page, "console-phone.png", server["tmp"])
 
 
+def test_viewer_tools_reset_scale_measure(ui, server) -> None:
+    """Opened straight from its address: reset view, a scale bar in metres, a distance measured
+    between two clicked surface points."""
+    page, base = ui.page, server["base"]
+    done = [j for j in httpx.get(base + "/reconstructions", params={"status": "succeeded"}).json()["items"]
+            if j["spec"]["methods"] == ["backprojection"]]
+    assert done, "needs the demo job of test_demo_job_result_view"
+    job_id = done[0]["id"]
+    page.goto(f"{base}/#/jobs/{job_id}")
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    cam = "() => window.__shsasViewer.camera.position.toArray()"
+    home = page.evaluate(cam)
+    # the scale bar: a round length, drawn as long as that length is on screen at the orbit centre
+    bar = page.locator("#scalebar")
+    assert bar.is_visible()
+    metres, px = float(bar.get_attribute("data-metres")), float(bar.get_attribute("data-px"))
+    assert f"{metres:.0e}"[0] in "125" and 40 <= px <= 130 and abs(bar.bounding_box()["width"] - px) < 2
+    per_px = page.evaluate("""() => { const v = window.__shsasViewer; const d = v.camera.position.distanceTo(v.controls.target);
+        return 2 * d * Math.tan(v.camera.fov * Math.PI / 360) / v.canvas.clientHeight; }""")
+    assert metres == pytest.approx(px * per_px, rel=1e-6)
+    # turn the view, then "Reset view" brings back the first one
+    box = page.locator("#viewer").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(cx, cy)
+    page.mouse.down()
+    page.mouse.move(cx + 150, cy + 40, steps=6)
+    page.mouse.up()
+    assert not np.allclose(page.evaluate(cam), home, atol=1e-4)
+    page.click("#reset-view")
+    assert np.allclose(page.evaluate(cam), home, atol=1e-9)
+    # measure: two clicks on the surface; the distance is the one between the two picked points
+    page.click("#measure")
+    assert page.get_attribute("#measure", "aria-pressed") == "true"
+    page.mouse.click(cx, cy)
+    page.wait_for_function("() => window.shsasConsole.tools.picks.length === 1")
+    page.mouse.click(cx + 40, cy + 25)
+    page.wait_for_function("() => window.shsasConsole.tools.picks.length === 2")
+    d = float(page.get_attribute("#measure-out", "data-metres"))
+    picks = page.evaluate("() => window.shsasConsole.tools.picks.map(p => p.toArray())")
+    assert d == pytest.approx(float(np.linalg.norm(np.subtract(*picks))), rel=1e-9) and d > 0
+    diag = page.evaluate("() => { const b = window.__shsasViewer.box(); return b.max.distanceTo(b.min); }")
+    assert d < diag  # both points on what is drawn
+    assert page.inner_text("#measure-out").startswith("distance ")
+
+
 def test_compare_panes_move_together(ui, server) -> None:
     """A job's methods side by side at #/jobs/{id}/compare, one pane each, one camera for all;
     the first view is drawn from the worker's light previews, the full files one click away."""

@@ -7,6 +7,7 @@ import { SpecForm } from "./form.js";
 import { JobList } from "./jobs.js";
 import { ResultView } from "./result.js";
 import { sniffSurvey } from "./sniff.js";
+import { ViewerTools } from "./tools.js";
 import { Viewer } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
@@ -51,6 +52,7 @@ const jobs = new JobList({
   onError: (e, keep) => banner(e, keep),
 });
 const viewer = new Viewer($("viewer"));
+const tools = new ViewerTools(viewer, { scalebar: $("scalebar"), measureBtn: $("measure"), resetBtn: $("reset-view"), out: $("measure-out") });
 const result = new ResultView(viewer, (e, keep) => banner(e, keep));
 let wantFocus = false;
 
@@ -253,5 +255,5 @@ document.querySelector(".skip").addEventListener("click", (ev) => {
   $("jobs-h").focus();
 });
 window.addEventListener("hashchange", route);
-window.shsasConsole = { jobs, result, viewer, ApiError }; // for the browser tests
+window.shsasConsole = { jobs, result, viewer, tools, ApiError }; // for the browser tests
 start();

@@ -52,9 +52,21 @@ export class Viewer {
 
   render() {
     this.renderer.render(this.scene, this.camera);
+    this.onRender?.();
+  }
+
+  /** Back to the view the result opened with. */
+  reset() {
+    if (!this.home) return;
+    this.camera.position.copy(this.home.position);
+    this.controls.target.copy(this.home.target);
+    this.camera.updateProjectionMatrix();
+    this.controls.update();
+    this.render();
   }
 
   clear() {
+    this.onClear?.();
     for (const name of [...this.layers.keys()]) this.remove(name);
     this.origin = null;
   }
@@ -160,6 +172,7 @@ export class Viewer {
     this.camera.far = size * 100;
     this.camera.updateProjectionMatrix();
     this.controls.update();
+    this.home = { position: this.camera.position.clone(), target: this.controls.target.clone() };
     this.render();
   }
 
