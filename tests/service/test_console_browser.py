@@ -538,6 +538,7 @@ def test_every_job_reachable_by_paging_filter_and_search(ui, server) -> None:
         page.wait_for_function("n => document.querySelectorAll('li.job').length === n", arg=PAGE_SIZE)
         assert listed_ids(page)[0] == ids[0]  # the running job first, although it is the oldest
         assert "running" in page.inner_text(f"li.job[data-job-id='{ids[0]}'] .meta")
+        page.evaluate("document.querySelector('#spec-box').open = false")  # the list, not the form
         shot(page, "console-list.png", server["tmp"])
         walked = walk_pages(page)
         assert len(walked) == len(set(walked)) and set(walked) == set(everything) and set(ids) <= set(walked)
