@@ -8,7 +8,12 @@ import io
 import numpy as np
 import trimesh
 
-from shsas_core.export import read_point_cloud_ply, write_mesh_glb, write_mesh_ply, write_point_cloud_ply
+from shsas_core.export import (
+    read_point_cloud_ply,
+    write_mesh_glb,
+    write_mesh_ply,
+    write_point_cloud_ply,
+)
 from shsas_core.extract import PointCloud
 from worker.previews import PREVIEW_FACES, PREVIEW_POINTS, preview_name, subsample, write_previews
 
