@@ -566,6 +566,33 @@ def test_every_job_reachable_by_paging_filter_and_search(ui, server) -> None:
         remove_jobs(server, ids)
 
 
+def test_leaving_mid_upload_asks_first(ui, server) -> None:
+    """While an upload is in flight the page asks before it is left; when none is, it does not."""
+    page = ui.page
+    dialogs: list[str] = []
+
+    def answer(d) -> None:
+        dialogs.append(d.type)
+        d.dismiss()  # stay on the page
+
+    page.on("dialog", answer)
+    held = []
+    page.route("**/reconstructions", lambda route: held.append(route) if route.request.method == "POST"
+               else route.fallback())  # the upload never gets an answer while the test looks
+    page.set_input_files("#survey-input", str(server["demo"]))
+    page.click("#submit-btn")
+    page.wait_for_function("() => document.querySelector('#upload-status').textContent.length > 0")
+    page.wait_for_timeout(300)
+    page.close(run_before_unload=True)
+    page.wait_for_timeout(1000)
+    assert dialogs == ["beforeunload"] and not page.is_closed()
+    held[0].abort("connectionreset")  # the upload ends: the page may now be left without a question
+    page.wait_for_selector("#retry-btn:not([hidden])")
+    page.close(run_before_unload=True)
+    page.wait_for_event("close", timeout=10_000) if not page.is_closed() else None
+    assert dialogs == ["beforeunload"] and page.is_closed()
+
+
 def test_page_loads_nothing_from_elsewhere(ui, server) -> None:
     """Every request of a full page load goes to the server (the fixture refuses and logs the rest)."""
     seen: list[str] = []
