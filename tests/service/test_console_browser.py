@@ -243,6 +243,12 @@ def test_demo_job_result_view(ui, server) -> None:
     assert page.is_hidden("#result-body")
     page.go_forward()
     page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    # "View result" again on the job already open (no change of address) still brings it into view
+    page.evaluate("window.scrollTo(0, document.body.scrollHeight)")
+    page.focus(f"{row} .open")
+    page.click(f"{row} .open")
+    page.wait_for_function("() => document.activeElement.id === 'result-h'")
+    assert 0 <= page.locator("#viewer").bounding_box()["y"] < 800 - 100
 
     # the viewer draws the mesh: compare with the same canvas with every layer hidden
     layers = page.query_selector_all("#layers input[type=checkbox]")

@@ -158,8 +158,8 @@ export class JobList {
     // links, not handlers: each result has its own address (#/jobs/{id}); back and forward work
     row.open.href = `#/jobs/${id}`;
     row.compare.href = `#/jobs/${id}/compare`;
-    row.open.addEventListener("click", () => this.onOpen(id));
-    row.compare.addEventListener("click", () => this.onOpen(id));
+    row.open.addEventListener("click", () => this.onOpen(row.open.getAttribute("href")));
+    row.compare.addEventListener("click", () => this.onOpen(row.compare.getAttribute("href")));
     row.cancel.addEventListener("click", () => this.act(id, "cancel"));
     row.del.addEventListener("click", () => this.confirmDelete(id));
     return row;

@@ -46,8 +46,11 @@ const jobs = new JobList({
   older: $("jobs-older"),
   pageLabel: $("jobs-page"),
   dialog: $("confirm-delete"),
-  onOpen: () => {
-    wantFocus = true; // a click on "View result": bring the result into view once routed
+  onOpen: (href) => {
+    // a click on "View result": bring the result into view once routed (at once when it is
+    // the address already, which fires no hashchange)
+    if (location.hash === href) result.bringIntoView();
+    else wantFocus = true;
   },
   onError: (e, keep) => banner(e, keep),
 });
