@@ -350,6 +350,14 @@ def test_viewer_tools_reset_scale_measure(ui, server) -> None:
     page.mouse.move(cx + 150, cy + 40, steps=6)
     page.mouse.up()
     assert not np.allclose(page.evaluate(cam), home, atol=1e-4)
+    # keyboard zoom: "+" brings the camera closer to the orbit centre, "-" takes it back
+    dist = "() => { const v = window.__shsasViewer; return v.camera.position.distanceTo(v.controls.target); }"
+    d0 = page.evaluate(dist)
+    page.focus("#viewer")
+    page.keyboard.press("+")
+    assert page.evaluate(dist) == pytest.approx(0.8 * d0, rel=1e-9)
+    page.keyboard.press("-")
+    assert page.evaluate(dist) == pytest.approx(d0, rel=1e-9)
     page.click("#reset-view")
     assert np.allclose(page.evaluate(cam), home, atol=1e-9)
     # measure: two clicks on the surface; the distance is the one between the two picked points

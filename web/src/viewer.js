@@ -30,6 +30,13 @@ export class Viewer {
     this.controls = new OrbitControls(this.camera, canvas);
     this.controls.listenToKeyEvents(canvas);
     this.controls.addEventListener("change", () => this.render());
+    // keyboard zoom beside OrbitControls' arrow keys: + / = closer, - farther
+    canvas.addEventListener("keydown", (e) => {
+      const f = { "+": 0.8, "=": 0.8, "-": 1.25, _: 1.25 }[e.key];
+      if (!f) return;
+      e.preventDefault();
+      this.zoom(f);
+    });
     this.scene.add(new THREE.HemisphereLight(0xffffff, 0x303040, 2.2));
     const sun = new THREE.DirectionalLight(0xffffff, 1.5);
     sun.position.set(1, -1, 2);
@@ -53,6 +60,13 @@ export class Viewer {
   render() {
     this.renderer.render(this.scene, this.camera);
     this.onRender?.();
+  }
+
+  /** Move the camera ``factor`` times its distance from the orbit centre (< 1: closer). */
+  zoom(factor) {
+    const offset = this.camera.position.clone().sub(this.controls.target).multiplyScalar(factor);
+    this.camera.position.copy(this.controls.target).add(offset);
+    this.controls.update(); // fires "change": linked panes follow
   }
 
   /** Back to the view the result opened with. */
