@@ -165,6 +165,14 @@ def test_upload_progress_cancel_delete(ui, server) -> None:
     first = progress_of(row)
     page.wait_for_function("([id, p]) => Number(document.querySelector(`li.job[data-job-id='${id}']`)"
                            ".dataset.progress) > p", arg=[job_id, first], timeout=JOB_TIMEOUT_MS)
+    # the live loss: a curve of the values read while the page watched, as the API gave them
+    curve = f"li.job[data-job-id='{job_id}'] svg.loss"
+    page.wait_for_function("s => Number(document.querySelector(s)?.dataset.samples) >= 3", arg=curve,
+                           timeout=JOB_TIMEOUT_MS)
+    label = page.get_attribute(curve, "aria-label")
+    assert label.startswith("loss from ") and len(page.get_attribute(f"{curve} polyline", "points").split()) >= 3
+    loss = httpx.get(f"{server['base']}/reconstructions/{job_id}").json()["live_metrics"]["loss"]
+    assert loss > 0 and "loss" in page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
     meta = page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
     assert "running for" in meta and "shsas" in meta, meta  # elapsed time, methods
     assert page.inner_text(f"li.job[data-job-id='{job_id}'] .title") == server["demo"].name  # the file's name

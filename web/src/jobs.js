@@ -35,6 +35,7 @@ export class JobList {
   constructor({ list, empty, status, search, newer, older, pageLabel, dialog, onOpen, onError }) {
     Object.assign(this, { list, empty, status, search, newer, older, pageLabel, dialog, onOpen, onError });
     this.rows = new Map();
+    this.losses = new Map(); // job id -> the loss values seen while this page polled it
     this.selected = null;
     this.timer = null;
     this.cursors = [null]; // cursors[i] loads page i; the first page has none
@@ -141,6 +142,7 @@ export class JobList {
       <div class="stage"></div>
       <progress max="1" value="0"></progress> <span class="pct"></span>
       <div class="meta muted"></div>
+      <svg class="loss" viewBox="0 0 200 30" preserveAspectRatio="none" role="img" hidden><polyline fill="none" stroke="currentColor" stroke-width="1.5"></polyline></svg>
       <div class="error" role="alert"></div>
       <div class="warn"></div>
       <div class="actions">
@@ -152,7 +154,7 @@ export class JobList {
     const q = (s) => li.querySelector(s);
     const row = { li, badge: q(".badge"), title: q(".title"), file: q(".file"), id: q(".id"), stage: q(".stage"),
       bar: q("progress"), pct: q(".pct"), meta: q(".meta"), error: q(".error"), warn: q(".warn"),
-      open: q(".open"), compare: q(".compare"), cancel: q(".cancel"), del: q(".delete") };
+      open: q(".open"), compare: q(".compare"), cancel: q(".cancel"), del: q(".delete"), curve: q("svg.loss") };
     row.id.textContent = id.slice(0, 8);
     row.id.title = id;
     // links, not handlers: each result has its own address (#/jobs/{id}); back and forward work
@@ -186,6 +188,7 @@ export class JobList {
     meta.push((job.spec.methods || []).join(", "));
     if (job.created_at) meta.push(`submitted ${new Date(job.created_at).toLocaleString()}`);
     row.meta.textContent = meta.filter(Boolean).join(" · ");
+    this.drawLoss(row, job);
     row.error.textContent = job.error ? `Error: ${job.error}` : "";
     row.warn.textContent = (job.warnings || []).map((w) => `⚠ ${w.method}: ${w.message}`).join("\n");
     row.open.hidden = job.status !== "succeeded";
@@ -193,6 +196,26 @@ export class JobList {
     row.cancel.hidden = !ACTIVE.has(job.status) || job.cancel_requested;
     row.del.hidden = ACTIVE.has(job.status);
     row.li.classList.toggle("selected", this.selected === job.id);
+  }
+
+  /** The live loss as a curve (log scale) of the values seen since this page began to watch. */
+  drawLoss(row, job) {
+    const loss = job.live_metrics?.loss;
+    const seen = this.losses.get(job.id) || [];
+    if (job.status === "running" && Number.isFinite(loss) && loss > 0 && loss !== seen[seen.length - 1]) {
+      seen.push(loss);
+      if (seen.length > 300) seen.splice(0, seen.length - 300);
+      this.losses.set(job.id, seen);
+    }
+    row.curve.hidden = job.status !== "running" || seen.length < 2;
+    if (row.curve.hidden) return;
+    const logs = seen.map(Math.log10);
+    const lo = Math.min(...logs);
+    const span = Math.max(...logs) - lo || 1;
+    const pts = logs.map((v, i) => `${((i / (logs.length - 1)) * 200).toFixed(1)},${(28 - ((v - lo) / span) * 26).toFixed(1)}`);
+    row.curve.querySelector("polyline").setAttribute("points", pts.join(" "));
+    row.curve.dataset.samples = String(seen.length);
+    row.curve.setAttribute("aria-label", `loss from ${seen[0].toPrecision(3)} to ${seen[seen.length - 1].toPrecision(3)} over ${seen.length} readings`);
   }
 
   select(id) {
