@@ -27,7 +27,7 @@ from worker.store import JobStore
 from . import iso, survey_routes
 from .console import add_console
 from .logs import AccessLogMiddleware
-from .routes import artifacts, health, reconstructions
+from .routes import artifacts, bundle, health, reconstructions
 from .sweeper import Sweeper
 from .uploads import UploadError
 
@@ -100,6 +100,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
 
     app.include_router(reconstructions.router)
     app.include_router(artifacts.router)
+    app.include_router(bundle.router)  # every artifact in one streamed zip
     app.include_router(health.router)
     # The console and the routes made for it (re-extraction, survey view), kept in their modules.
     app.include_router(iso.router)

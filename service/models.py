@@ -35,6 +35,8 @@ class JobInput(BaseModel):
     digest: str = Field(description="sha256 of the uploaded survey file")
     bytes: int
     name: str = Field(description="server-made name of the stored input")
+    filename: str | None = Field(None, description="the survey's file name as the client uploaded it "
+                                 "(null for jobs submitted before it was kept)")
 
 
 class ResultWarningOut(ResultWarning):
@@ -61,6 +63,7 @@ class JobOut(BaseModel):
     updated_at: str | None
     error: str | None
     spec: dict[str, Any]
+    label: str | None = Field(None, description="the submitter's name for the job (form field `label`)")
     input: JobInput
     metrics: dict[str, dict[str, float | None]] | None = Field(
         None, description="per-method metrics summary (null: undefined, e.g. Chamfer of an empty cloud)")
@@ -95,8 +98,9 @@ class JobOut(BaseModel):
             id=job.id, status=job.status, progress=job.progress, stage=job.stage, iterations_per_s=rate,  # type: ignore[arg-type]
             live_metrics=lm, attempts=job.attempts, cancel_requested=job.cancel_requested,
             created_at=iso(job.created_at), started_at=iso(job.started_at), finished_at=iso(job.finished_at),
-            updated_at=iso(job.updated_at), error=job.error, spec=job.spec,
-            input=JobInput(digest=job.input_digest, bytes=job.input_bytes, name=job.input_name),
+            updated_at=iso(job.updated_at), error=job.error, spec=job.spec, label=job.label,
+            input=JobInput(digest=job.input_digest, bytes=job.input_bytes, name=job.input_name,
+                           filename=job.client_name),
             metrics=job.metrics, warnings=[ResultWarningOut.model_validate(w) for w in job.warnings],
             device=job.device,
             artifacts=[ArtifactLink(name=a, url=f"{url}/artifacts/{a}") for a in job.artifacts],

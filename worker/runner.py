@@ -24,6 +24,7 @@ from pathlib import Path
 from shsas_core.atomic import is_partial, remove_partials
 
 from .periodic import Periodic
+from .previews import write_previews
 from .settings import Settings
 from .store import Job, JobStore
 
@@ -194,6 +195,7 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         except MemoryError:
             return _fail(store, job, owner, "the job ran out of memory (try a smaller grid or fewer rays)")
         artifacts = _checked_artifacts(out_dir, list(result.artifacts))
+        artifacts += write_previews(out_dir, artifacts)  # light copies for the console's first view
         # None (an undefined metric) is kept as it is: JSON null in the job table and the API
         metrics = {m: {k: (None if v is None else float(v)) for k, v in d.items()
                        if v is None or isinstance(v, int | float)}

@@ -11,6 +11,7 @@ from worker.runner import job_paths
 
 from ..artifacts import etag_of, file_response, media_type, safe_artifact_path
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep
+from ..job_names import content_disposition, download_name
 from ..lookup import job_of
 from ..models import Artifact, ArtifactList
 
@@ -52,7 +53,10 @@ def get_artifact(
     if p is None:
         raise HTTPException(404, f"no artifact {name!r} in reconstruction {job.id} "
                                  f"(available: {', '.join(job.artifacts) or 'none yet'})")
-    return file_response(p, request.headers, name, head=request.method == "HEAD")
+    resp = file_response(p, request.headers, name, head=request.method == "HEAD")
+    # saved under the uploaded survey's name: scan42_shsas_mesh.glb
+    resp.headers["Content-Disposition"] = content_disposition(download_name(job.client_name, name))
+    return resp
 
 
 @router.head("/reconstructions/{job_id}/artifacts/{name}", responses={

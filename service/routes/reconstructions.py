@@ -20,9 +20,10 @@ from shsas_core.errors import pydantic_fix
 from shsas_core.spec import ReconstructionSpec
 from worker.dispatch import dispatch
 from worker.runner import job_paths, remove_job_files
-from worker.store import STATUSES, IdempotencyConflict, Job
+from worker.store import ORDERS, STATUSES, IdempotencyConflict, Job
 
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep, json_response
+from ..job_names import job_label
 from ..lookup import job_of
 from ..models import ErrorOut, JobOut, JobPage
 from ..quotas import box_of, check_active_jobs, check_spec_cost
@@ -70,13 +71,16 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
     Refused with 429 past the key's quota of queued and running jobs, and with 422 when the
     spec is over the cost cap (docs/service.md, "Limits")."""
     with upload_dir(settings.data_dir / "uploads") as tmp_dir:
-        up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes)
+        # "label" (optional): the operator's name for the job, shown in lists and searched
+        up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes,
+                                  text_fields=("spec", "label"))
         if up.path is None:
             raise UploadError(422, "survey: missing file part 'survey' (fix: send the survey file as "
                                    "the multipart field 'survey', e.g. curl -F survey=@scan.h5)")
         if up.size == 0:
             raise UploadError(422, f"survey '{up.display_name}': the uploaded file is empty "
                                    "(fix: check the path given to the upload)")
+        label = job_label(up.fields.get("label"))
         spec_text = up.fields.get("spec", "").strip() or "{}"
         try:
             spec = ReconstructionSpec.model_validate_json(spec_text)
@@ -108,7 +112,8 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
             job, created = await to_thread.run_sync(lambda: store.create_job(
                 owner=who, spec=spec_json, input_digest=up.sha256, input_name=input_name,
                 input_bytes=up.size, queue=settings.queue_for(spec.device), job_id=job_id,
-                idempotency_key=idempotency_key, request_digest=request_digest))
+                idempotency_key=idempotency_key, request_digest=request_digest,
+                client_name=up.filename, label=label))
         except IdempotencyConflict as exc:
             shutil.rmtree(in_dir.parent, ignore_errors=True)
             raise UploadError(409, str(exc)) from None
@@ -137,16 +142,29 @@ def _accepted(job: Job, request: Request) -> JSONResponse:
 
 
 @router.get("/reconstructions", response_model=JobPage, responses=ERRORS)
-async def list_jobs(who: Owner, store: StoreDep, settings: SettingsDep, status: Annotated[str | None, Query(description="filter: " + ", ".join(STATUSES))] = None,
-              cursor: str | None = None, limit: Annotated[int, Query(ge=1, le=1000)] = 50) -> Response:
-    """The caller's jobs, newest first, one page at a time."""
-    if status is not None and status not in STATUSES:
-        raise HTTPException(400, f"status: unknown status {status!r} (one of {', '.join(STATUSES)})")
+async def list_jobs(
+    who: Owner, store: StoreDep, settings: SettingsDep,
+    status: Annotated[str | None, Query(description="filter: one of " + ", ".join(STATUSES)
+                                        + ", or several joined by commas (queued,running)")] = None,
+    q: Annotated[str | None, Query(max_length=200, description="text search: part of the uploaded file "
+                                   "name or the label (any case), or the start of the job id")] = None,
+    order: Annotated[str, Query(description="newest (default): newest first; active: running, then "
+                                "queued, then finished jobs, each newest first")] = "newest",
+    cursor: str | None = None, limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+) -> Response:
+    """The caller's jobs, one page at a time (``next_cursor`` for the next, with the same filters)."""
+    wanted = tuple(s.strip() for s in status.split(",") if s.strip()) if status else None
+    for s in wanted or ():
+        if s not in STATUSES:
+            raise HTTPException(400, f"status: unknown status {s!r} (one of {', '.join(STATUSES)})")
+    if order not in ORDERS:
+        raise HTTPException(400, f"order: unknown order {order!r} (one of {', '.join(ORDERS)})")
     try:
-        items, nxt = store.list_jobs(who, status=status, cursor=cursor,
-                                     limit=min(limit, settings.page_size_max))
+        items, nxt = await to_thread.run_sync(lambda: store.list_jobs(
+            who, status=wanted, text=q, order=order, cursor=cursor,  # type: ignore[arg-type]
+            limit=min(limit, settings.page_size_max)))
     except ValueError:
-        raise HTTPException(400, "cursor: not a cursor this API returned") from None
+        raise HTTPException(400, "cursor: not a cursor this API returned for this order") from None
     return json_response(JobPage(items=[JobOut.from_job(j) for j in items], next_cursor=nxt))
 
 

@@ -10,6 +10,7 @@ context (the server's "internet" is blocked); each test ends by checking that lo
 from __future__ import annotations
 
 import io
+import json
 import os
 import subprocess
 from collections.abc import Iterator
@@ -29,11 +30,20 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 #: The demo job: one quick method on a small grid; the long one is cancelled mid-run.
 DEMO_SPEC = {"methods": "backprojection", "grid": "32", "device": "cpu"}
+#: Three methods, quickly: the neural fields start from nothing and take a few steps (the panes
+#: need three results, not good ones).
+COMPARE_SPEC = {"methods": ["backprojection", "reed", "shsas"], "grid": 24, "iters": 20, "init": "none",
+                "num_rays": 16, "num_bins": 8, "device": "cpu"}
 LONG_SPEC = {"methods": "shsas", "iters": "100000", "grid": "16", "device": "cpu", "num_rays": "16", "num_bins": "8"}
 #: Share of the viewer's pixels that must differ from the empty canvas once the mesh is shown.
 MIN_DRAWN_SHARE = 0.05
 JOB_TIMEOUT_MS = 180_000
+#: Share of a frame's pixels that must be dark (text) for it to count as showing something: a
+#: page of text inks a few percent of its pixels, a blank frame none.
+MIN_TEXT_SHARE = 0.005
 DOCS_IMG = REPO / "docs" / "img"
+#: Jobs on one page of the console's list (web/src/jobs.js, PAGE_SIZE).
+PAGE_SIZE = 20
 
 
 def _need(what: str) -> None:
@@ -122,6 +132,13 @@ def progress_of(row) -> float:
     return float(row.get_attribute("data-progress"))
 
 
+def dark_share(png: bytes) -> float:
+    """Share of the pixels of a screenshot darker than mid-grey (text on a light page)."""
+    from PIL import Image
+
+    return float((np.asarray(Image.open(io.BytesIO(png)).convert("L")) < 128).mean())
+
+
 def shot(page, name: str, tmp: Path, **kw) -> bytes:
     png = page.screenshot(**kw)
     (tmp / name).write_bytes(png)
@@ -148,14 +165,34 @@ def test_upload_progress_cancel_delete(ui, server) -> None:
     first = progress_of(row)
     page.wait_for_function("([id, p]) => Number(document.querySelector(`li.job[data-job-id='${id}']`)"
                            ".dataset.progress) > p", arg=[job_id, first], timeout=JOB_TIMEOUT_MS)
-    assert "attempts 1" in page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
+    # the live loss: a curve of the values read while the page watched, as the API gave them
+    curve = f"li.job[data-job-id='{job_id}'] svg.loss"
+    page.wait_for_function("s => Number(document.querySelector(s)?.dataset.samples) >= 3", arg=curve,
+                           timeout=JOB_TIMEOUT_MS)
+    label = page.get_attribute(curve, "aria-label")
+    assert label.startswith("loss from ") and len(page.get_attribute(f"{curve} polyline", "points").split()) >= 3
+    loss = httpx.get(f"{server['base']}/reconstructions/{job_id}").json()["live_metrics"]["loss"]
+    assert loss > 0 and "loss" in page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
+    meta = page.inner_text(f"li.job[data-job-id='{job_id}'] .meta")
+    assert "running for" in meta and "shsas" in meta, meta  # elapsed time, methods
+    assert page.inner_text(f"li.job[data-job-id='{job_id}'] .title") == server["demo"].name  # the file's name
     shot(page, "console-running.png", server["tmp"])
     page.click(f"li.job[data-job-id='{job_id}'] button.cancel")
     page.wait_for_selector(f"li.job[data-job-id='{job_id}'][data-status=cancelled]", timeout=JOB_TIMEOUT_MS)
     assert httpx.get(f"{server['base']}/reconstructions/{job_id}").json()["status"] == "cancelled"
     # delete: DELETE /reconstructions/{id} (a server without it answers 405 and the page says so)
     supported = "delete" in httpx.get(f"{server['base']}/openapi.json").json()["paths"]["/reconstructions/{job_id}"]
+    # Delete asks first, saying it is permanent; "Keep it" keeps the job
     page.click(f"li.job[data-job-id='{job_id}'] button.delete")
+    page.wait_for_selector("#confirm-delete[open]")
+    assert "cannot be undone" in page.inner_text("#confirm-delete") and job_id[:8] in page.inner_text("#confirm-delete")
+    page.click("#confirm-delete button[value=keep]")
+    page.wait_for_selector("#confirm-delete", state="hidden")
+    page.wait_for_timeout(1500)  # a delete would have been sent by now; the list polls every second
+    assert httpx.get(f"{server['base']}/reconstructions/{job_id}").status_code == 200
+    assert page.query_selector(f"li.job[data-job-id='{job_id}']") is not None
+    page.click(f"li.job[data-job-id='{job_id}'] button.delete")
+    page.click("#confirm-delete-yes")
     if supported:
         page.wait_for_selector(f"li.job[data-job-id='{job_id}']", state="detached", timeout=30_000)
         assert httpx.get(f"{server['base']}/reconstructions/{job_id}").status_code == 404
@@ -179,6 +216,7 @@ def test_demo_job_result_view(ui, server) -> None:
     before = {j["id"] for j in httpx.get(base + "/reconstructions").json()["items"]}
     page.set_input_files("#survey-input", str(server["demo"]))
     fill_spec(page, DEMO_SPEC)
+    page.fill("#label-input", "demo sphere, pass 1")
     page.click("#submit-btn")
     page.wait_for_selector("#retry-btn:not([hidden])")
     assert "dropped" in page.inner_text("#upload-status")
@@ -187,9 +225,38 @@ def test_demo_job_result_view(ui, server) -> None:
     new = [j for j in httpx.get(base + "/reconstructions").json()["items"] if j["id"] not in before]
     assert len(new) == 1 and dropped, new
     job_id = new[0]["id"]
-    page.wait_for_selector(f"li.job[data-job-id='{job_id}'][data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
-    page.click(f"li.job[data-job-id='{job_id}'] button.open")
+    assert new[0]["label"] == "demo sphere, pass 1" and new[0]["input"]["filename"] == server["demo"].name
+    row = f"li.job[data-job-id='{job_id}']"
+    page.wait_for_selector(f"{row}[data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
+    assert page.inner_text(f"{row} .title") == "demo sphere, pass 1"
+    assert page.inner_text(f"{row} .file") == server["demo"].name
+    assert page.inner_text(f"{row} .meta").startswith("ran ")  # how long it ran
+    # "View result" from a list scrolled down: the result comes into view with the focus, at
+    # its own address, and the list beside it does not move
+    page.evaluate("window.scrollTo(0, document.body.scrollHeight)")
+    jobs_top = page.evaluate("document.querySelector('#jobs').getBoundingClientRect().top + window.scrollY")
+    page.click(f"{row} .open")
     page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    assert page.url.endswith(f"/#/jobs/{job_id}")
+    assert page.evaluate("document.activeElement.id") == "result-h"
+    box = page.locator("#viewer").bounding_box()
+    assert 0 <= box["y"] < 800 - 100, f"the 3-D view is off-screen (top at {box['y']:.0f} px)"
+    assert page.evaluate("document.querySelector('#jobs').getBoundingClientRect().top + window.scrollY") == jobs_top
+    # reload, back and forward: the address reopens the job
+    page.reload()
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    assert "demo sphere, pass 1" in page.inner_text("#result-h")
+    page.go_back()
+    page.wait_for_selector("#result-hint:not([hidden])")
+    assert page.is_hidden("#result-body")
+    page.go_forward()
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    # "View result" again on the job already open (no change of address) still brings it into view
+    page.evaluate("window.scrollTo(0, document.body.scrollHeight)")
+    page.focus(f"{row} .open")
+    page.click(f"{row} .open")
+    page.wait_for_function("() => document.activeElement.id === 'result-h'")
+    assert 0 <= page.locator("#viewer").bounding_box()["y"] < 800 - 100
 
     # the viewer draws the mesh: compare with the same canvas with every layer hidden
     layers = page.query_selector_all("#layers input[type=checkbox]")
@@ -247,6 +314,14 @@ def test_demo_job_result_view(ui, server) -> None:
     page.click("#artifacts a:text-is('report.html')")
     page.wait_for_selector("#report-frame:not([hidden])")
     assert page.get_attribute("#report-frame", "sandbox") == ""
+    # ... and shows it: the frame's pixels carry the report's text, not a blank white box
+    frame = page.frame_locator("#report-frame")
+    frame.locator("h1").wait_for()
+    assert frame.locator("h1").inner_text() == "shsas reconstruction report"
+    page.wait_for_function("() => true", polling=500)  # one more frame painted
+    ink = dark_share(page.locator("#report-frame").screenshot())
+    assert ink > MIN_TEXT_SHARE, f"the report frame looks blank ({ink:.4f} of its pixels are dark)"
+    shot(page, "console-report.png", server["tmp"], clip=page.locator("#report-frame").bounding_box())
 
     # a phone-sized window: one column, nothing wider than the screen
     page.set_viewport_size({"width": 390, "height": 844})
@@ -255,9 +330,125 @@ def test_demo_job_result_view(ui, server) -> None:
     shot(page, "console-phone.png", server["tmp"])
 
 
+def test_viewer_tools_reset_scale_measure(ui, server) -> None:
+    """Opened straight from its address: reset view, a scale bar in metres, a distance measured
+    between two clicked surface points."""
+    page, base = ui.page, server["base"]
+    done = [j for j in httpx.get(base + "/reconstructions", params={"status": "succeeded"}).json()["items"]
+            if j["spec"]["methods"] == ["backprojection"]]
+    assert done, "needs the demo job of test_demo_job_result_view"
+    job_id = done[0]["id"]
+    page.goto(f"{base}/#/jobs/{job_id}")
+    page.wait_for_selector(f"body[data-viewer-ready='{job_id}']", state="attached", timeout=60_000)
+    cam = "() => window.__shsasViewer.camera.position.toArray()"
+    home = page.evaluate(cam)
+    # the scale bar: a round length, drawn as long as that length is on screen at the orbit centre
+    bar = page.locator("#scalebar")
+    assert bar.is_visible()
+    metres, px = float(bar.get_attribute("data-metres")), float(bar.get_attribute("data-px"))
+    assert f"{metres:.0e}"[0] in "125" and 40 <= px <= 130 and abs(bar.bounding_box()["width"] - px) < 2
+    per_px = page.evaluate("""() => { const v = window.__shsasViewer; const d = v.camera.position.distanceTo(v.controls.target);
+        return 2 * d * Math.tan(v.camera.fov * Math.PI / 360) / v.canvas.clientHeight; }""")
+    assert metres == pytest.approx(px * per_px, rel=1e-6)
+    # turn the view, then "Reset view" brings back the first one
+    box = page.locator("#viewer").bounding_box()
+    cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.mouse.move(cx, cy)
+    page.mouse.down()
+    page.mouse.move(cx + 150, cy + 40, steps=6)
+    page.mouse.up()
+    assert not np.allclose(page.evaluate(cam), home, atol=1e-4)
+    # keyboard zoom: "+" brings the camera closer to the orbit centre, "-" takes it back
+    dist = "() => { const v = window.__shsasViewer; return v.camera.position.distanceTo(v.controls.target); }"
+    d0 = page.evaluate(dist)
+    page.focus("#viewer")
+    page.keyboard.press("+")
+    assert page.evaluate(dist) == pytest.approx(0.8 * d0, rel=1e-9)
+    page.keyboard.press("-")
+    assert page.evaluate(dist) == pytest.approx(d0, rel=1e-9)
+    page.click("#reset-view")
+    assert np.allclose(page.evaluate(cam), home, atol=1e-9)
+    # measure: two clicks on the surface; the distance is the one between the two picked points
+    page.click("#measure")
+    assert page.get_attribute("#measure", "aria-pressed") == "true"
+    page.mouse.click(cx, cy)
+    page.wait_for_function("() => window.shsasConsole.tools.picks.length === 1")
+    page.mouse.click(cx + 40, cy + 25)
+    page.wait_for_function("() => window.shsasConsole.tools.picks.length === 2")
+    d = float(page.get_attribute("#measure-out", "data-metres"))
+    picks = page.evaluate("() => window.shsasConsole.tools.picks.map(p => p.toArray())")
+    assert d == pytest.approx(float(np.linalg.norm(np.subtract(*picks))), rel=1e-9) and d > 0
+    diag = page.evaluate("() => { const b = window.__shsasViewer.box(); return b.max.distanceTo(b.min); }")
+    assert d < diag  # both points on what is drawn
+    assert page.inner_text("#measure-out").startswith("distance ")
+
+
+def test_compare_panes_move_together(ui, server) -> None:
+    """A job's methods side by side at #/jobs/{id}/compare, one pane each, one camera for all;
+    the first view is drawn from the worker's light previews, the full files one click away."""
+    page, base = ui.page, server["base"]
+    with open(server["demo"], "rb") as fh:
+        r = httpx.post(base + "/reconstructions", files={"survey": ("demo.h5", fh)},
+                       data={"spec": json.dumps(COMPARE_SPEC), "label": "three methods"}, timeout=120)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    fetched: list[str] = []
+    page.on("requestfinished", lambda req: fetched.append(req.url.split("?")[0]))
+    row = f"li.job[data-job-id='{job_id}']"
+    page.wait_for_selector(f"{row}[data-status=succeeded]", timeout=JOB_TIMEOUT_MS)
+    page.click(f"{row} .compare")
+    page.wait_for_selector(f"body[data-compare-ready='{job_id}']", state="attached", timeout=60_000)
+    assert page.url.endswith(f"/#/jobs/{job_id}/compare")
+    assert page.eval_on_selector_all("#compare-panes figcaption", "fs => fs.map(f => f.textContent.split(' —')[0])") == [
+        "backprojection", "Reed et al. (SH degree 0)", "SH-SAS"]
+    # the pipeline's warnings stand above the views (and on the row), as the API gives them
+    warnings = httpx.get(f"{base}/reconstructions/{job_id}").json()["warnings"]
+    shown = page.eval_on_selector_all("#result-warnings li", "lis => lis.map(li => li.textContent)")
+    assert len(shown) == len(warnings) and all(w["message"] in t for w, t in zip(warnings, shown, strict=True))
+    assert page.is_visible("#result-warnings") == bool(warnings)
+    assert page.inner_text(f"{row} .warn").count("⚠") == len(warnings)
+    cams = "() => window.shsasConsole.result.panes.map(v => v.camera.position.toArray())"
+    before = page.evaluate(cams)
+    assert all(np.allclose(c, before[0]) for c in before)  # framed alike
+    # drag in the second pane: every pane turns the same way
+    box = page.locator("#compare-panes canvas").nth(1).bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    page.mouse.move(box["x"] + box["width"] / 2 + 120, box["y"] + box["height"] / 2 + 30, steps=8)
+    page.mouse.up()
+    after = page.evaluate(cams)
+    assert not np.allclose(after[1], before[1], atol=1e-4), "the drag did not move the camera"
+    for c in after:
+        assert np.allclose(c, after[1], atol=1e-9), after
+    # the wheel in the first pane zooms all of them
+    box0 = page.locator("#compare-panes canvas").nth(0).bounding_box()
+    page.mouse.move(box0["x"] + 50, box0["y"] + 50)
+    page.mouse.wheel(0, 300)
+    page.wait_for_function("() => { const p = window.shsasConsole.result.panes.map(v => v.camera.position.toArray());"
+                           " return p.every(c => c.every((x, k) => Math.abs(x - p[0][k]) < 1e-9)); }")
+    zoomed = page.evaluate(cams)
+    assert not np.allclose(zoomed[0], after[0], atol=1e-4)
+    shot(page, "console-compare.png", server["tmp"])
+    # the first view came from the previews, not the full files
+    glbs = [u.rsplit("/", 1)[1] for u in fetched if u.endswith(".glb") and "/artifacts/" in u]
+    assert sorted(glbs) == sorted(f"{m}_mesh_preview.glb" for m in ("backprojection", "reed", "shsas")), glbs
+    page.click("#full-res")
+    page.wait_for_function("() => document.querySelector('#full-res').hidden")
+    page.wait_for_selector(f"body[data-compare-ready='{job_id}']", state="attached", timeout=60_000)
+    page.wait_for_function("n => performance.getEntriesByType('resource').filter(e => /_mesh\\.glb$/.test(e.name)).length >= n",
+                           arg=3)
+    # back to the single view: its own address
+    page.click("#tab-view")
+    page.wait_for_selector("#compare", state="hidden")
+    assert page.url.endswith(f"/#/jobs/{job_id}") and page.evaluate("window.shsasConsole.result.panes.length") == 0
+
+
 def test_errors_shown_beside_their_fields(ui, server) -> None:
     page = ui.page
-    # a malformed survey, dropped on the drop zone: the API's message under the file field
+    posts: list[str] = []
+    page.on("request", lambda r: posts.append(r.url) if r.method == "POST" else None)
+    # a file that is no survey, dropped on the drop zone: refused from its first bytes, before
+    # any upload, with the message under the file field and in the list of problems
     page.evaluate("""() => {
         const dt = new DataTransfer();
         dt.items.add(new File(['this is not a survey\\n'.repeat(50)], 'notes.txt', {type: 'text/plain'}));
@@ -267,16 +458,161 @@ def test_errors_shown_beside_their_fields(ui, server) -> None:
     page.click("#submit-btn")
     page.wait_for_function("() => document.querySelector('#err-survey').textContent.length > 0", timeout=60_000)
     assert "not a recognised survey" in page.inner_text("#err-survey")
+    assert "not a recognised survey" in page.inner_text("#submit-errors")
+    assert posts == [], posts
+    # an emptied numeric field is flagged, not sent as its default
+    page.set_input_files("#survey-input", str(server["demo"]))
+    page.fill("#spec-iters", "")
+    page.fill("#spec-sh_degree", "")
+    page.click("#submit-btn")
+    page.wait_for_selector("#submit-errors:not([hidden])")
+    assert page.inner_text("#err-spec-iters").startswith("iters: empty")
+    assert page.inner_text("#err-spec-sh_degree").startswith("sh_degree: empty")
+    listed = page.eval_on_selector_all("#submit-errors li", "lis => lis.map(li => li.textContent)")
+    assert [t.split(":")[0] for t in listed] == ["sh_degree", "iters"], listed
+    assert page.evaluate("document.activeElement.id") == "spec-sh_degree" and posts == []
+    page.reload()
+    page.wait_for_selector("#spec-grid")
     # a spec value over its limit: the API's message beside that field, which gets the focus
     page.set_input_files("#survey-input", str(server["demo"]))
     fill_spec(page, {"grid": "9999"})
+    posts.clear()
     page.click("#submit-btn")
     page.wait_for_function("() => document.querySelector('#err-spec-grid').textContent.length > 0", timeout=60_000)
+    assert len(posts) == 1  # this one went to the server, which refused it
     msg = page.inner_text("#err-spec-grid")
     assert msg.startswith("spec.grid") and "512" in msg
     assert page.evaluate("document.activeElement.id") == "spec-grid"
     assert page.inner_text("#err-spec-iters") == "" and page.inner_text("#err-survey") == ""
+    assert page.inner_text("#submit-errors li").startswith("spec.grid")  # every refusal listed in view
     shot(page, "console-error.png", server["tmp"])
+
+
+def insert_jobs(server, n: int) -> list[str]:
+    """``n`` finished jobs (every third failed, the rest cancelled) straight into the server's job
+    store, as submissions of the keyless owner would leave them, plus one running job held by a
+    worker elsewhere (fresh heartbeat) older than all of them. Returns the ids, running one first."""
+    import json
+    import time
+    import uuid
+
+    from worker.store import LOCAL_OWNER, JobStore, jobs
+
+    store = JobStore(f"sqlite:///{Path(server['env']['SHSAS_DATA_DIR']) / 'shsas.db'}")
+    now = time.time()
+    rows, ids = [], []
+    for i in range(n + 1):
+        running = i == n
+        status = "running" if running else "failed" if i % 3 == 0 else "cancelled"
+        jid = uuid.uuid4().hex
+        ids.append(jid)
+        rows.append({"id": jid, "owner": LOCAL_OWNER, "spec": json.dumps({"methods": ["backprojection"]}),
+                     "input_digest": "0" * 64, "input_name": "survey.h5", "input_bytes": 1, "queue": "cpu",
+                     "status": status, "progress": 0.5 if running else 0.0, "attempts": 1,
+                     "cancel_requested": False, "created_at": now - 3600 + (0 if running else i),
+                     "started_at": now - 3600, "finished_at": None if running else now - 60,
+                     "updated_at": now, "artifacts": "[]", "error": "inserted by the test" if status == "failed" else None,
+                     "client_name": f"scan-{i:03d}.h5", "label": "held elsewhere" if running else None,
+                     "lease_owner": "elsewhere" if running else None,
+                     "heartbeat_at": now + 86400 if running else None})  # never stale within the test
+    with store.engine.begin() as conn:
+        conn.execute(jobs.insert(), rows)
+    store.dispose()
+    return [ids[-1], *ids[:-1]]
+
+
+def remove_jobs(server, ids: list[str]) -> None:
+    from worker.store import JobStore
+
+    store = JobStore(f"sqlite:///{Path(server['env']['SHSAS_DATA_DIR']) / 'shsas.db'}")
+    for jid in ids:
+        store.delete(jid)
+    store.dispose()
+
+
+def listed_ids(page) -> list[str]:
+    return page.eval_on_selector_all("li.job", "lis => lis.map(li => li.dataset.jobId)")
+
+
+def walk_pages(page) -> list[str]:
+    """Every job id the list shows, page by page with "Older", from the first page."""
+    seen = listed_ids(page)
+    while page.is_enabled("#jobs-older"):
+        before = page.inner_text("#jobs-page")
+        page.click("#jobs-older")
+        page.wait_for_function("t => document.querySelector('#jobs-page').textContent !== t", arg=before)
+        page.wait_for_function("() => document.querySelectorAll('li.job').length > 0")
+        seen += listed_ids(page)
+    return seen
+
+
+def test_every_job_reachable_by_paging_filter_and_search(ui, server) -> None:
+    page, base = ui.page, server["base"]
+    ids = insert_jobs(server, 120)
+    try:
+        everything, cursor = [], None
+        while True:  # what the API holds for this owner: the 121 jobs plus the other tests'
+            got = httpx.get(base + "/reconstructions", params={"limit": 100, **({"cursor": cursor} if cursor else {})}).json()
+            everything += [j["id"] for j in got["items"]]
+            if not (cursor := got["next_cursor"]):
+                break
+        page.reload()
+        page.wait_for_function("n => document.querySelectorAll('li.job').length === n", arg=PAGE_SIZE)
+        assert listed_ids(page)[0] == ids[0]  # the running job first, although it is the oldest
+        assert "running" in page.inner_text(f"li.job[data-job-id='{ids[0]}'] .meta")
+        page.evaluate("document.querySelector('#spec-box').open = false")  # the list, not the form
+        shot(page, "console-list.png", server["tmp"])
+        walked = walk_pages(page)
+        assert len(walked) == len(set(walked)) and set(walked) == set(everything) and set(ids) <= set(walked)
+        # back to newer pages
+        page.click("#jobs-newer")
+        last = (len(everything) + PAGE_SIZE - 1) // PAGE_SIZE
+        page.wait_for_function("t => document.querySelector('#jobs-page').textContent === t", arg=f"page {last - 1}")
+        # a status filter: only the failed ones, every one of them, across pages
+        page.select_option("#jobs-status", "failed")
+        page.wait_for_function("() => document.querySelector('#jobs-page').textContent === 'page 1' && "
+                               "[...document.querySelectorAll('li.job')].every(li => li.dataset.status === 'failed')")
+        failed = walk_pages(page)
+        want = {j["id"] for j in httpx.get(base + "/reconstructions", params={"status": "failed", "limit": 100}).json()["items"]}
+        assert set(failed) == want and len(failed) == len(want) >= 40
+        # a text search, over the uploaded file names, combined with the filter
+        page.select_option("#jobs-status", "")
+        page.fill("#jobs-search", "SCAN-07")
+        page.wait_for_function("() => document.querySelectorAll('li.job').length === 10")
+        assert sorted(page.eval_on_selector_all("li.job .title", "ts => ts.map(t => t.textContent)")) == [
+            f"scan-{i:03d}.h5" for i in range(70, 80)]
+        page.fill("#jobs-search", "no such job")
+        page.wait_for_selector("#jobs-empty:not([hidden])")
+        assert page.inner_text("#jobs-empty") == "No job matches this filter."
+    finally:
+        remove_jobs(server, ids)
+
+
+def test_leaving_mid_upload_asks_first(ui, server) -> None:
+    """While an upload is in flight the page asks before it is left; when none is, it does not."""
+    page = ui.page
+    dialogs: list[str] = []
+
+    def answer(d) -> None:
+        dialogs.append(d.type)
+        d.dismiss()  # stay on the page
+
+    page.on("dialog", answer)
+    held = []
+    page.route("**/reconstructions", lambda route: held.append(route) if route.request.method == "POST"
+               else route.fallback())  # the upload never gets an answer while the test looks
+    page.set_input_files("#survey-input", str(server["demo"]))
+    page.click("#submit-btn")
+    page.wait_for_function("() => document.querySelector('#upload-status').textContent.length > 0")
+    page.wait_for_timeout(300)
+    page.close(run_before_unload=True)
+    page.wait_for_timeout(1000)
+    assert dialogs == ["beforeunload"] and not page.is_closed()
+    held[0].abort("connectionreset")  # the upload ends: the page may now be left without a question
+    page.wait_for_selector("#retry-btn:not([hidden])")
+    page.close(run_before_unload=True)
+    page.wait_for_event("close", timeout=10_000) if not page.is_closed() else None
+    assert dialogs == ["beforeunload"] and page.is_closed()
 
 
 def test_page_loads_nothing_from_elsewhere(ui, server) -> None:

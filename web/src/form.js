@@ -47,6 +47,7 @@ export class SpecForm {
     const hintText = [short, limits(p, nullable)].filter(Boolean).join(" — ");
     const hint = el("span", { class: "hint", id: `hint-${name}`, title: desc || undefined }, hintText);
     let read;
+    let check = () => null;
     if (p.type === "array" && p.items && p.items.enum) {
       const group = el("div", { class: "checks", role: "group", "aria-labelledby": `lbl-${name}`, "aria-describedby": hint.id });
       const boxes = p.items.enum.map((v) => {
@@ -77,6 +78,11 @@ export class SpecForm {
       });
       input.value = p.default ?? "";
       box.append(el("label", { for: id }, name), input);
+      // an emptied field is an error, not the default: "iters" left empty must not mean 2000
+      if (numeric && !nullable) {
+        check = () => (input.value.trim() === "" ? `${name}: ${input.validity.badInput ? "not a number" : "empty"} ` +
+          `(fix: give a value${p.default !== undefined ? `; the default is ${p.default}` : ""})` : null);
+      }
       read = () => {
         const v = input.value.trim();
         if (v === "") return nullable ? null : undefined;
@@ -87,7 +93,20 @@ export class SpecForm {
     }
     box.append(err, hint); // the error right under the control, where the focus lands
     this.container.append(box);
-    this.fields[name] = { read, default: p.default ?? null, box, err };
+    this.fields[name] = { read, check, default: p.default ?? null, box, err };
+  }
+
+  /** The problems found before sending (each also shown beside its field): [{name, text}]. */
+  check() {
+    const out = [];
+    for (const [name, f] of Object.entries(this.fields)) {
+      const text = f.check();
+      if (!text) continue;
+      f.err.textContent = text;
+      f.box.classList.add("invalid");
+      out.push({ name, text });
+    }
+    return out;
   }
 
   /** The spec to send: only the fields that differ from their defaults. */

@@ -1,34 +1,55 @@
-// The job list: polls GET /reconstructions and updates one row per job in place (so keyboard
-// focus stays on its button). ETA and queue position are worked out here from what the API
-// gives: progress and started_at; created_at of the key's queued jobs.
+// The job list: one page of GET /reconstructions?order=active (running jobs, then queued, then
+// finished), filtered by status and text on the server, paged with its cursors, polled every
+// second. Rows are updated in place (so keyboard focus stays on its button). Delete asks first.
 
 import { api, ApiError } from "./api.js";
+import { plainStage } from "./stages.js";
 
 const POLL_MS = 1000;
+export const PAGE_SIZE = 20;
 const ACTIVE = new Set(["queued", "running"]);
 
-function fmtDuration(s) {
+export function fmtDuration(s) {
   if (!Number.isFinite(s) || s < 0) return "";
   if (s < 90) return `${Math.round(s)} s`;
-  if (s < 5400) return `${Math.round(s / 60)} min`;
+  if (s < 5400) return `${Math.floor(s / 60)} min ${String(Math.round(s % 60)).padStart(2, "0")} s`;
   return `${(s / 3600).toFixed(1)} h`;
 }
 
-export function eta(job, now = Date.now()) {
-  if (job.status !== "running" || !job.started_at || !(job.progress > 0.01)) return null;
-  const elapsed = (now - Date.parse(job.started_at)) / 1000;
-  return (elapsed * (1 - job.progress)) / job.progress;
+/** What the job is called in the list: its label, else the uploaded file's name, else its id. */
+export function jobTitle(job) {
+  return job.label || job.input?.filename || job.id.slice(0, 8);
+}
+
+/** "running for 3 min 04 s", "ran 2 min 24 s", "waiting for 40 s": from the job's own times. */
+export function elapsed(job, now = Date.now()) {
+  const t = (iso) => (iso ? Date.parse(iso) : null);
+  const [created, started, finished] = [t(job.created_at), t(job.started_at), t(job.finished_at)];
+  if (job.status === "queued") return created ? `waiting for ${fmtDuration((now - created) / 1000)}` : "";
+  if (job.status === "running") return started ? `running for ${fmtDuration((now - started) / 1000)}` : "";
+  if (started && finished) return `ran ${fmtDuration((finished - started) / 1000)}`;
+  return "";
 }
 
 export class JobList {
-  constructor({ list, empty, onOpen, onError }) {
-    this.list = list;
-    this.empty = empty;
-    this.onOpen = onOpen;
-    this.onError = onError;
+  constructor({ list, empty, status, search, newer, older, pageLabel, dialog, onOpen, onError }) {
+    Object.assign(this, { list, empty, status, search, newer, older, pageLabel, dialog, onOpen, onError });
     this.rows = new Map();
+    this.losses = new Map(); // job id -> the loss values seen while this page polled it
     this.selected = null;
     this.timer = null;
+    this.cursors = [null]; // cursors[i] loads page i; the first page has none
+    this.page = 0;
+    this.next = null;
+    this.onJob = () => {}; // called with every job seen (main.js opens a routed job once it finished)
+    status.addEventListener("change", () => this.restart());
+    let typing = null;
+    search.addEventListener("input", () => {
+      clearTimeout(typing);
+      typing = setTimeout(() => this.restart(), 300); // one request per pause in typing
+    });
+    newer.addEventListener("click", () => this.go(this.page - 1));
+    older.addEventListener("click", () => this.go(this.page + 1));
   }
 
   start() {
@@ -51,17 +72,40 @@ export class JobList {
     this.empty.hidden = false;
   }
 
+  restart() {
+    this.cursors = [null];
+    this.page = 0;
+    this.refresh();
+  }
+
+  go(page) {
+    if (page < 0 || (page > this.page && !this.next)) return;
+    if (page > this.page) this.cursors[page] = this.next;
+    this.page = page;
+    this.refresh();
+  }
+
+  query() {
+    const q = new URLSearchParams({ order: "active", limit: String(PAGE_SIZE) });
+    if (this.status.value) q.set("status", this.status.value);
+    if (this.search.value.trim()) q.set("q", this.search.value.trim());
+    if (this.cursors[this.page]) q.set("cursor", this.cursors[this.page]);
+    return q.toString();
+  }
+
   async refresh() {
+    const query = this.query();
     let page;
     try {
-      page = await api("/reconstructions?limit=50");
+      page = await api(`/reconstructions?${query}`);
     } catch (e) {
       this.onError(e);
       return;
     }
+    if (query !== this.query()) return; // the filter or page changed meanwhile: its answer is coming
     this.onError(null);
+    this.next = page.next_cursor;
     const jobs = page.items;
-    const queued = jobs.filter((j) => j.status === "queued").sort((a, b) => Date.parse(a.created_at) - Date.parse(b.created_at));
     const seen = new Set();
     jobs.forEach((job, i) => {
       seen.add(job.id);
@@ -71,7 +115,8 @@ export class JobList {
         this.rows.set(job.id, row);
       }
       if (this.list.children[i] !== row.li) this.list.insertBefore(row.li, this.list.children[i] || null);
-      this.update(row, job, queued.findIndex((q) => q.id === job.id));
+      this.update(row, job);
+      this.onJob(job);
     });
     for (const [id, row] of this.rows) {
       if (!seen.has(id)) {
@@ -79,7 +124,12 @@ export class JobList {
         this.rows.delete(id);
       }
     }
+    const filtered = this.status.value || this.search.value.trim();
     this.empty.hidden = jobs.length > 0;
+    this.empty.textContent = filtered ? "No job matches this filter." : this.page ? "No more jobs." : "No jobs yet.";
+    this.newer.disabled = this.page === 0;
+    this.older.disabled = !this.next;
+    this.pageLabel.textContent = `page ${this.page + 1}`;
   }
 
   makeRow(id) {
@@ -87,59 +137,103 @@ export class JobList {
     li.className = "job";
     li.dataset.jobId = id;
     li.innerHTML = `
-      <div class="top"><span class="badge"></span><span class="id"></span><span class="stage muted"></span></div>
+      <div class="top"><span class="badge"></span><span class="title"></span></div>
+      <div class="sub muted"><span class="file"></span> <span class="id"></span></div>
+      <div class="stage"></div>
       <progress max="1" value="0"></progress> <span class="pct"></span>
       <div class="meta muted"></div>
+      <svg class="loss" viewBox="0 0 200 30" preserveAspectRatio="none" role="img" hidden><polyline fill="none" stroke="currentColor" stroke-width="1.5"></polyline></svg>
       <div class="error" role="alert"></div>
       <div class="warn"></div>
       <div class="actions">
-        <button type="button" class="open">View result</button>
+        <a class="open button" role="button">View result</a>
+        <a class="compare button" role="button">Compare methods</a>
         <button type="button" class="cancel">Cancel</button>
-        <button type="button" class="delete">Delete</button>
+        <button type="button" class="delete">Delete…</button>
       </div>`;
     const q = (s) => li.querySelector(s);
-    const row = { li, badge: q(".badge"), id: q(".id"), stage: q(".stage"), bar: q("progress"), pct: q(".pct"),
-      meta: q(".meta"), error: q(".error"), warn: q(".warn"), open: q(".open"), cancel: q(".cancel"), del: q(".delete") };
+    const row = { li, badge: q(".badge"), title: q(".title"), file: q(".file"), id: q(".id"), stage: q(".stage"),
+      bar: q("progress"), pct: q(".pct"), meta: q(".meta"), error: q(".error"), warn: q(".warn"),
+      open: q(".open"), compare: q(".compare"), cancel: q(".cancel"), del: q(".delete"), curve: q("svg.loss") };
     row.id.textContent = id.slice(0, 8);
     row.id.title = id;
-    row.bar.setAttribute("aria-label", `progress of job ${id.slice(0, 8)}`);
-    row.open.addEventListener("click", () => this.select(id));
+    // links, not handlers: each result has its own address (#/jobs/{id}); back and forward work
+    row.open.href = `#/jobs/${id}`;
+    row.compare.href = `#/jobs/${id}/compare`;
+    row.open.addEventListener("click", () => this.onOpen(row.open.getAttribute("href")));
+    row.compare.addEventListener("click", () => this.onOpen(row.compare.getAttribute("href")));
     row.cancel.addEventListener("click", () => this.act(id, "cancel"));
-    row.del.addEventListener("click", () => this.act(id, "delete"));
+    row.del.addEventListener("click", () => this.confirmDelete(id));
     return row;
   }
 
-  update(row, job, queueIndex) {
+  update(row, job) {
     row.job = job;
     row.li.dataset.status = job.status;
     row.li.dataset.progress = String(job.progress);
     row.badge.className = `badge ${job.status}`;
     row.badge.textContent = job.status + (job.cancel_requested && ACTIVE.has(job.status) ? " (cancelling)" : "");
-    row.stage.textContent = job.stage || "";
+    row.title.textContent = jobTitle(job);
+    row.file.textContent = job.label && job.input?.filename ? job.input.filename : "";
+    row.bar.setAttribute("aria-label", `progress of ${jobTitle(job)}`);
+    row.stage.textContent = job.status === "running" ? plainStage(job.stage) : "";
+    row.bar.hidden = row.pct.hidden = job.status !== "running";
     row.bar.value = job.progress;
     row.pct.textContent = `${Math.round(job.progress * 100)} %`;
-    const meta = [];
-    if (job.status === "queued" && queueIndex >= 0) meta.push(`queue position ${queueIndex + 1} of your queued jobs`);
-    const left = eta(job);
-    if (left !== null) meta.push(`about ${fmtDuration(left)} left`);
-    if (job.iterations_per_s) meta.push(`${job.iterations_per_s.toFixed(1)} it/s`);
-    meta.push(`attempts ${job.attempts}`);
-    meta.push(`methods ${(job.spec.methods || []).join(", ")}`);
+    const meta = [elapsed(job)];
+    const loss = job.live_metrics?.loss;
+    if (job.status === "running" && Number.isFinite(loss)) meta.push(`loss ${loss.toPrecision(3)}`);
+    if (job.status === "running" && job.iterations_per_s) meta.push(`${job.iterations_per_s.toFixed(1)} it/s`);
+    if (job.attempts > 1) meta.push(`attempt ${job.attempts}`);
+    meta.push((job.spec.methods || []).join(", "));
     if (job.created_at) meta.push(`submitted ${new Date(job.created_at).toLocaleString()}`);
-    row.meta.textContent = meta.join(" · ");
+    row.meta.textContent = meta.filter(Boolean).join(" · ");
+    this.drawLoss(row, job);
     row.error.textContent = job.error ? `Error: ${job.error}` : "";
     row.warn.textContent = (job.warnings || []).map((w) => `⚠ ${w.method}: ${w.message}`).join("\n");
     row.open.hidden = job.status !== "succeeded";
+    row.compare.hidden = job.status !== "succeeded" || (job.spec.methods || []).length < 2;
     row.cancel.hidden = !ACTIVE.has(job.status) || job.cancel_requested;
     row.del.hidden = ACTIVE.has(job.status);
     row.li.classList.toggle("selected", this.selected === job.id);
   }
 
+  /** The live loss as a curve (log scale) of the values seen since this page began to watch. */
+  drawLoss(row, job) {
+    const loss = job.live_metrics?.loss;
+    const seen = this.losses.get(job.id) || [];
+    if (job.status === "running" && Number.isFinite(loss) && loss > 0 && loss !== seen[seen.length - 1]) {
+      seen.push(loss);
+      if (seen.length > 300) seen.splice(0, seen.length - 300);
+      this.losses.set(job.id, seen);
+    }
+    row.curve.hidden = job.status !== "running" || seen.length < 2;
+    if (row.curve.hidden) return;
+    const logs = seen.map(Math.log10);
+    const lo = Math.min(...logs);
+    const span = Math.max(...logs) - lo || 1;
+    const pts = logs.map((v, i) => `${((i / (logs.length - 1)) * 200).toFixed(1)},${(28 - ((v - lo) / span) * 26).toFixed(1)}`);
+    row.curve.querySelector("polyline").setAttribute("points", pts.join(" "));
+    row.curve.dataset.samples = String(seen.length);
+    row.curve.setAttribute("aria-label", `loss from ${seen[0].toPrecision(3)} to ${seen[seen.length - 1].toPrecision(3)} over ${seen.length} readings`);
+  }
+
   select(id) {
     this.selected = id;
     for (const [rid, row] of this.rows) row.li.classList.toggle("selected", rid === id);
+  }
+
+  /** Delete only after the operator said so in a dialog that says it cannot be undone. */
+  confirmDelete(id) {
     const row = this.rows.get(id);
-    if (row) this.onOpen(row.job);
+    const d = this.dialog;
+    d.querySelector(".what").textContent = row ? `“${jobTitle(row.job)}” (${id.slice(0, 8)})` : id.slice(0, 8);
+    d.returnValue = "";
+    d.onclose = () => {
+      if (d.returnValue === "delete") this.act(id, "delete");
+      else row?.del.focus();
+    };
+    d.showModal();
   }
 
   async act(id, what) {

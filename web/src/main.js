@@ -1,9 +1,13 @@
 // The shsas operator console: key, upload, jobs, result. Only the public REST API is used.
+// Each result has its own address, #/jobs/{id} (#/jobs/{id}/compare: its methods side by
+// side), so reload, back and forward work.
 
 import { api, ApiError, key, upload } from "./api.js";
 import { SpecForm } from "./form.js";
 import { JobList } from "./jobs.js";
 import { ResultView } from "./result.js";
+import { sniffSurvey } from "./sniff.js";
+import { ViewerTools } from "./tools.js";
 import { Viewer } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
@@ -31,15 +35,59 @@ function keyStatus() {
 let form = null;
 let file = null;
 let pending = null; // { form: FormData, idem: string } of an upload to retry
+let uploading = false;
 
 const jobs = new JobList({
   list: $("job-list"),
   empty: $("jobs-empty"),
-  onOpen: (job) => result.open(job).catch((e) => banner(e, true)),
+  status: $("jobs-status"),
+  search: $("jobs-search"),
+  newer: $("jobs-newer"),
+  older: $("jobs-older"),
+  pageLabel: $("jobs-page"),
+  dialog: $("confirm-delete"),
+  onOpen: (href) => {
+    // a click on "View result": bring the result into view once routed (at once when it is
+    // the address already, which fires no hashchange)
+    if (location.hash === href) result.bringIntoView();
+    else wantFocus = true;
+  },
   onError: (e, keep) => banner(e, keep),
 });
 const viewer = new Viewer($("viewer"));
+const tools = new ViewerTools(viewer, { scalebar: $("scalebar"), measureBtn: $("measure"), resetBtn: $("reset-view"), out: $("measure-out") });
 const result = new ResultView(viewer, (e, keep) => banner(e, keep));
+let wantFocus = false;
+
+// --- routing: #/jobs/{id}[/compare] -------------------------------------------------------
+
+function parseRoute() {
+  const m = location.hash.match(/^#\/jobs\/([0-9a-f]{32})(\/compare)?$/);
+  return m ? { id: m[1], compare: !!m[2] } : null;
+}
+
+async function route() {
+  const r = parseRoute();
+  jobs.select(r ? r.id : null);
+  if (!r) {
+    result.close();
+    return;
+  }
+  const focus = wantFocus;
+  wantFocus = false;
+  try {
+    await result.show(r.id, { compare: r.compare, focus });
+  } catch (e) {
+    banner(e, true);
+  }
+}
+
+jobs.onJob = (job) => {
+  // a routed job that was still running when opened: show its result once it succeeded
+  if (result.waitingFor === job.id && job.status === "succeeded") route();
+};
+
+// --- upload -------------------------------------------------------------------------------
 
 function pickFile(f) {
   file = f;
@@ -47,13 +95,41 @@ function pickFile(f) {
   $("err-survey").textContent = "";
 }
 
+/** List every problem of a refused submission above the button, each linked to its field. */
+function listErrors(problems) {
+  const box = $("submit-errors");
+  const ul = box.querySelector("ul");
+  ul.replaceChildren();
+  for (const { text, target } of problems) {
+    const li = document.createElement("li");
+    if (target) {
+      const a = Object.assign(document.createElement("a"), { href: "#", textContent: text });
+      a.addEventListener("click", (ev) => {
+        ev.preventDefault(); // not a navigation: the hash is the result's address
+        $(target)?.focus();
+      });
+      li.append(a);
+    } else li.textContent = text;
+    ul.append(li);
+  }
+  box.hidden = problems.length === 0;
+  if (problems.length) box.scrollIntoView({ block: "nearest" });
+}
+
 function showUploadError(e) {
-  const detail = e.message;
-  const rest = form.showErrors(detail);
-  if (!rest) return;
-  if (/^survey|upload|file/i.test(rest) || e.status === 413 || e.status === 415) $("err-survey").textContent = rest;
-  else if (e.status === 401) banner(e);
-  else $("err-spec").textContent = rest;
+  const parts = e.message.split(/; (?=spec[.:])/);
+  const rest = form.showErrors(e.message);
+  if (rest) {
+    if (/^survey|upload|file/i.test(rest) || e.status === 413 || e.status === 415) $("err-survey").textContent = rest;
+    else if (e.status === 401) banner(e);
+    else if (/^label/.test(rest)) $("err-label").textContent = rest;
+    else $("err-spec").textContent = rest;
+  }
+  listErrors(parts.map((text) => {
+    const m = text.match(/^spec\.([A-Za-z_]\w*)/);
+    const target = m && form.fields[m[1]] ? `spec-${m[1]}` : /^label/.test(text) ? "label-input" : /^survey|file/i.test(text) ? "survey-input" : null;
+    return { text, target };
+  }));
 }
 
 async function send() {
@@ -64,6 +140,7 @@ async function send() {
   $("retry-btn").hidden = true;
   $("submit-btn").disabled = true;
   $("upload-status").textContent = "uploading…";
+  uploading = true;
   try {
     const job = await upload(body, idem, (f) => {
       bar.value = f;
@@ -84,26 +161,55 @@ async function send() {
       showUploadError(e);
     }
   } finally {
+    uploading = false;
     $("submit-btn").disabled = false;
   }
 }
 
-function submit(ev) {
-  ev.preventDefault();
+function clearErrors() {
   form.clearErrors();
   $("err-survey").textContent = "";
   $("err-spec").textContent = "";
+  $("err-label").textContent = "";
+  listErrors([]);
+}
+
+async function submit(ev) {
+  ev.preventDefault();
+  clearErrors();
+  const problems = [];
   if (!file) {
     $("err-survey").textContent = "survey: choose or drop a survey file first";
-    $("survey-input").focus();
+    problems.push({ text: $("err-survey").textContent, target: "survey-input" });
+  } else {
+    // the first bytes say whether this can be a survey at all: a wrong file is refused here,
+    // before a long upload, with the message the server would give after it
+    const wrong = await sniffSurvey(file);
+    if (wrong) {
+      $("err-survey").textContent = wrong;
+      problems.push({ text: wrong, target: "survey-input" });
+    }
+  }
+  for (const p of form.check()) problems.push({ text: p.text, target: `spec-${p.name}` });
+  if (problems.length) {
+    listErrors(problems);
+    $(problems[0].target)?.focus();
     return;
   }
   const body = new FormData();
   body.append("survey", file, file.name);
   body.append("spec", JSON.stringify(form.value()));
+  if ($("label-input").value.trim()) body.append("label", $("label-input").value.trim());
   pending = { form: body, idem: crypto.randomUUID() };
   send();
 }
+
+// Leaving mid-upload loses it: the browser asks first.
+window.addEventListener("beforeunload", (ev) => {
+  if (!uploading) return;
+  ev.preventDefault();
+  ev.returnValue = "";
+});
 
 async function start() {
   keyStatus();
@@ -114,6 +220,7 @@ async function start() {
     return;
   }
   jobs.start();
+  route();
 }
 
 $("key-form").addEventListener("submit", (ev) => {
@@ -124,6 +231,7 @@ $("key-form").addEventListener("submit", (ev) => {
   keyStatus();
   jobs.clear();
   jobs.refresh();
+  route();
 });
 $("key-forget").addEventListener("click", () => {
   key.set("");
@@ -144,5 +252,11 @@ drop.addEventListener("drop", (e) => {
 });
 $("upload-form").addEventListener("submit", submit);
 $("retry-btn").addEventListener("click", () => pending && send());
-window.shsasConsole = { jobs, result, viewer, ApiError }; // for the browser tests
+// the skip link moves the focus without touching the address (the hash names the open result)
+document.querySelector(".skip").addEventListener("click", (ev) => {
+  ev.preventDefault();
+  $("jobs-h").focus();
+});
+window.addEventListener("hashchange", route);
+window.shsasConsole = { jobs, result, viewer, tools, ApiError }; // for the browser tests
 start();

@@ -19,7 +19,7 @@ function viridis(t) {
 }
 
 export class Viewer {
-  constructor(canvas) {
+  constructor(canvas, { main = true } = {}) {
     this.canvas = canvas;
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
@@ -30,6 +30,13 @@ export class Viewer {
     this.controls = new OrbitControls(this.camera, canvas);
     this.controls.listenToKeyEvents(canvas);
     this.controls.addEventListener("change", () => this.render());
+    // keyboard zoom beside OrbitControls' arrow keys: + / = closer, - farther
+    canvas.addEventListener("keydown", (e) => {
+      const f = { "+": 0.8, "=": 0.8, "-": 1.25, _: 1.25 }[e.key];
+      if (!f) return;
+      e.preventDefault();
+      this.zoom(f);
+    });
     this.scene.add(new THREE.HemisphereLight(0xffffff, 0x303040, 2.2));
     const sun = new THREE.DirectionalLight(0xffffff, 1.5);
     sun.position.set(1, -1, 2);
@@ -38,7 +45,7 @@ export class Viewer {
     this.origin = null; // survey-frame point placed at the scene origin (float32 precision)
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
-    window.__shsasViewer = this; // for the browser tests: what the scene holds
+    if (main) window.__shsasViewer = this; // for the browser tests: what the scene holds
   }
 
   resize() {
@@ -52,9 +59,28 @@ export class Viewer {
 
   render() {
     this.renderer.render(this.scene, this.camera);
+    this.onRender?.();
+  }
+
+  /** Move the camera ``factor`` times its distance from the orbit centre (< 1: closer). */
+  zoom(factor) {
+    const offset = this.camera.position.clone().sub(this.controls.target).multiplyScalar(factor);
+    this.camera.position.copy(this.controls.target).add(offset);
+    this.controls.update(); // fires "change": linked panes follow
+  }
+
+  /** Back to the view the result opened with. */
+  reset() {
+    if (!this.home) return;
+    this.camera.position.copy(this.home.position);
+    this.controls.target.copy(this.home.target);
+    this.camera.updateProjectionMatrix();
+    this.controls.update();
+    this.render();
   }
 
   clear() {
+    this.onClear?.();
     for (const name of [...this.layers.keys()]) this.remove(name);
     this.origin = null;
   }
@@ -134,8 +160,23 @@ export class Viewer {
   }
 
   frame() {
+    this.frameBox(this.box());
+  }
+
+  /** Place every layer relative to this survey-frame point (panes that share a camera share it). */
+  setOrigin(offset) {
+    this.origin = new THREE.Vector3(...(offset || [0, 0, 0]));
+  }
+
+  /** The box of the visible layers (empty when none). */
+  box() {
     const box = new THREE.Box3();
     for (const obj of this.layers.values()) if (obj.visible) box.expandByObject(obj);
+    return box;
+  }
+
+  /** Look at ``box`` from the default direction. */
+  frameBox(box) {
     if (box.isEmpty()) return;
     const centre = box.getCenter(new THREE.Vector3());
     const size = box.getSize(new THREE.Vector3()).length() || 1;
@@ -145,7 +186,40 @@ export class Viewer {
     this.camera.far = size * 100;
     this.camera.updateProjectionMatrix();
     this.controls.update();
+    this.home = { position: this.camera.position.clone(), target: this.controls.target.clone() };
     this.render();
+  }
+
+  /** Copy another viewer's camera (position, target, clipping) and draw. */
+  follow(other) {
+    this.camera.position.copy(other.camera.position);
+    this.camera.quaternion.copy(other.camera.quaternion);
+    this.camera.near = other.camera.near;
+    this.camera.far = other.camera.far;
+    this.camera.updateProjectionMatrix();
+    this.controls.target.copy(other.controls.target);
+    this.controls.update();
+    this.render();
+  }
+
+  /** Link the cameras of ``viewers``: moving one moves all of them the same way. */
+  static link(viewers) {
+    let busy = false; // follow() fires the followers' own change events
+    for (const v of viewers) {
+      v.controls.addEventListener("change", () => {
+        if (busy) return;
+        busy = true;
+        for (const o of viewers) if (o !== v) o.follow(v);
+        busy = false;
+      });
+    }
+  }
+
+  dispose() {
+    this.clear();
+    this.controls.dispose();
+    this.renderer.dispose();
+    this.renderer.forceContextLoss(); // a browser keeps only a few WebGL contexts
   }
 
   /** What the scene holds, for tests and the status line. */

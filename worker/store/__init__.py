@@ -6,7 +6,8 @@ Celery only delivers work; whoever holds a job's lease (``lease_owner`` + fresh
 workers, two API processes or two reconcilers can never both win the same transition.
 
 One concern per module: ``records`` (tables, decoded rows, engine), ``base`` (connection),
-``queries`` (the API's side), ``leases`` (the workers' side), ``keys`` (API keys);
+``queries`` (the API's side), ``listing`` (pages of an owner's jobs), ``migrate`` (columns
+added since a store was made), ``leases`` (the workers' side), ``keys`` (API keys);
 :class:`JobStore` is all of them over one engine.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 from .keys import ApiKeys
 from .leases import Leases
+from .listing import ORDERS, JobListing
 from .queries import JobQueries
 from .records import (
     KEY_PREFIX,
@@ -28,9 +30,9 @@ from .records import (
     make_engine,
 )
 
-__all__ = ["KEY_PREFIX", "LOCAL_OWNER", "STATUSES", "TERMINAL", "ApiKey", "IdempotencyConflict", "Job",
+__all__ = ["KEY_PREFIX", "LOCAL_OWNER", "ORDERS", "STATUSES", "TERMINAL", "ApiKey", "IdempotencyConflict", "Job",
            "JobStore", "decode_cursor", "jobs", "make_engine"]
 
 
-class JobStore(JobQueries, Leases, ApiKeys):
+class JobStore(JobQueries, JobListing, Leases, ApiKeys):
     """All reads and writes of jobs and API keys."""

@@ -10,6 +10,7 @@ from typing import Self
 import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
+from .migrate import add_missing_columns
 from .records import make_engine, metadata
 
 
@@ -32,6 +33,7 @@ class StoreBase:
                 # API replicas and workers start together: serialise CREATE TABLE IF NOT EXISTS.
                 conn.execute(sa.text("SELECT pg_advisory_xact_lock(7274201)"))
             metadata.create_all(conn)
+            add_missing_columns(conn, metadata)  # a store made by an older release
 
     @classmethod
     def from_settings(cls, settings) -> Self:

@@ -15,8 +15,6 @@ from .records import (
     TERMINAL,
     IdempotencyConflict,
     Job,
-    decode_cursor,
-    encode_cursor,
     jobs,
 )
 
@@ -26,7 +24,8 @@ class JobQueries(StoreBase):
 
     def create_job(self, *, owner: str, spec: dict[str, Any], input_digest: str, input_name: str,
                    input_bytes: int, queue: str, job_id: str | None = None,
-                   idempotency_key: str | None = None, request_digest: str | None = None) -> tuple[Job, bool]:
+                   idempotency_key: str | None = None, request_digest: str | None = None,
+                   client_name: str | None = None, label: str | None = None) -> tuple[Job, bool]:
         """Insert a queued job. Returns (job, created); with an Idempotency-Key seen before and
         the same ``request_digest`` returns the earlier job and False.
 
@@ -40,6 +39,7 @@ class JobQueries(StoreBase):
             "queue": queue, "status": "queued", "progress": 0.0, "attempts": 0,
             "cancel_requested": False, "created_at": now, "updated_at": now, "artifacts": "[]",
             "idempotency_key": idempotency_key, "request_digest": request_digest,
+            "client_name": client_name, "label": label,
         }
         if idempotency_key is not None:
             prior = self.find_by_idempotency_key(owner, idempotency_key)
@@ -77,22 +77,6 @@ class JobQueries(StoreBase):
         with self.engine.connect() as conn:
             row = conn.execute(q).first()
         return Job.from_row(row) if row else None
-
-    def list_jobs(self, owner: str, *, status: str | None = None, cursor: str | None = None,
-                  limit: int = 50) -> tuple[list[Job], str | None]:
-        """The owner's jobs newest first; returns (page, next_cursor or None)."""
-        q = jobs.select().where(jobs.c.owner == owner)
-        if status is not None:
-            q = q.where(jobs.c.status == status)
-        if cursor:
-            created, jid = decode_cursor(cursor)
-            q = q.where(sa.or_(jobs.c.created_at < created,
-                               sa.and_(jobs.c.created_at == created, jobs.c.id < jid)))
-        q = q.order_by(jobs.c.created_at.desc(), jobs.c.id.desc()).limit(limit + 1)
-        with self.engine.connect() as conn:
-            rows = [Job.from_row(r) for r in conn.execute(q)]
-        nxt = encode_cursor(rows[limit - 1].created_at, rows[limit - 1].id) if len(rows) > limit else None
-        return rows[:limit], nxt
 
     def request_cancel(self, job_id: str, owner: str) -> Job | None:
         """Cancel a queued job at once; flag a running one for its worker to stop cooperatively."""

@@ -47,6 +47,10 @@ jobs = sa.Table(
     sa.Column("metrics", sa.Text, nullable=True),
     sa.Column("idempotency_key", sa.String(200), nullable=True),
     sa.Column("request_digest", sa.String(64), nullable=True),
+    # Added after the first release: nullable, so ``migrate.add_missing_columns`` can add them
+    # to an existing table (rows from before read as None).
+    sa.Column("client_name", sa.String(255), nullable=True),
+    sa.Column("label", sa.String(200), nullable=True),
     sa.UniqueConstraint("owner", "idempotency_key", name="uq_shsas_jobs_owner_idem"),
     sa.Index("ix_shsas_jobs_owner_created", "owner", "created_at"),
     sa.Index("ix_shsas_jobs_status_heartbeat", "status", "heartbeat_at"),
@@ -106,6 +110,10 @@ class Job:
     #: the device that ran the job (``cpu``, ``cuda:0 (card)``); stored inside ``metrics``; None
     #: until the job succeeded, and for rows written before it was recorded
     device: str | None = None
+    #: the survey's file name as the client sent it (None for rows from before it was kept)
+    client_name: str | None = None
+    #: the operator's free-text name for the job
+    label: str | None = None
 
     @classmethod
     def from_row(cls, row: sa.Row) -> Job:
