@@ -7,11 +7,16 @@ and words the refusal, naming the limit and the setting that raises it.
 
 from __future__ import annotations
 
+from contextlib import AsyncExitStack
+
+from anyio import to_thread
+
 from shsas_core.methods import NEURAL
 from shsas_core.spec import ReconstructionSpec
 from shsas_core.survey import SceneBox
 from shsas_core.volume import auto_grid_count
 from worker.settings import Settings
+from worker.store import JobStore
 
 from .uploads import UploadError
 
@@ -65,6 +70,26 @@ def check_active_jobs(active: int, settings: Settings) -> None:
             f"this API key already has {active} queued or running jobs, the limit is {limit} "
             "(SHSAS_MAX_ACTIVE_JOBS_PER_KEY) (fix: wait for some to finish, or cancel some with "
             "POST /reconstructions/{id}/cancel, then resubmit)"))
+
+
+def reservation_ttl_s(settings: Settings) -> float:
+    """How long a submission's quota slot may stay reserved: the validation's time limit plus a
+    margin for the job's insert and dispatch. Older reservations belong to a dead API process."""
+    return settings.validate_timeout_s + 300.0
+
+
+async def hold_slot(held: AsyncExitStack, store: JobStore, owner: str, settings: Settings) -> None:
+    """Reserve one of ``owner``'s quota slots until ``held`` closes, or refuse with 429.
+
+    The count and the reservation are one transaction in the job store, so N concurrent
+    submissions of one key get at most the quota's free slots between them.
+    """
+    rid, in_use = await to_thread.run_sync(
+        store.reserve_slot, owner, settings.max_active_jobs_per_key, reservation_ttl_s(settings))
+    if rid is None:
+        check_active_jobs(in_use, settings)
+        return
+    held.push_async_callback(to_thread.run_sync, store.release_slot, rid)
 
 
 def box_of(summary: dict) -> SceneBox | None:

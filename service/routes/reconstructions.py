@@ -8,6 +8,7 @@ import logging
 import shutil
 import time
 import uuid
+from contextlib import AsyncExitStack
 from typing import Annotated
 
 import anyio
@@ -25,7 +26,7 @@ from worker.store import STATUSES, IdempotencyConflict, Job
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep, json_response
 from ..lookup import job_of
 from ..models import ErrorOut, JobOut, JobPage
-from ..quotas import box_of, check_active_jobs, check_spec_cost
+from ..quotas import box_of, check_spec_cost, hold_slot
 from ..status import live_status
 from ..sweeper import upload_dir
 from ..uploads import UploadError, receive_upload
@@ -69,6 +70,12 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
 
     Refused with 429 past the key's quota of queued and running jobs, and with 422 when the
     spec is over the cost cap (docs/service.md, "Limits")."""
+    async with AsyncExitStack() as held:  # the key's quota slot, reserved until the job row exists
+        return await _submit(request, who, store, settings, idempotency_key, held)
+
+
+async def _submit(request: Request, who: str, store: StoreDep, settings: SettingsDep,
+                  idempotency_key: str | None, held: AsyncExitStack) -> Response:
     with upload_dir(settings.data_dir / "uploads") as tmp_dir:
         up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes)
         if up.path is None:
@@ -93,7 +100,7 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
                     raise UploadError(409, f"Idempotency-Key already used for job {prior.id} "
                                            "with a different survey or spec")
                 return _accepted(prior, request)
-        check_active_jobs(await to_thread.run_sync(store.count_active, who), settings)
+        await hold_slot(held, store, who, settings)
         upload_path = up.path
         checked = await to_thread.run_sync(lambda: validate_in_child(
             upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,

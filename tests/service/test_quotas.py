@@ -59,3 +59,47 @@ def test_quota_is_429_naming_the_limit() -> None:
         check_active_jobs(3, settings)
     assert err.value.status == 429 and "SHSAS_MAX_ACTIVE_JOBS_PER_KEY" in err.value.message
     assert "the limit is 3" in err.value.message
+
+
+# ---- the quota under concurrency: real `shsas serve`, real HTTP, SQLite and PostgreSQL -------
+
+CONCURRENT_POSTS = 12
+SMALL_QUOTA = 2
+
+
+@pytest.mark.service
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_concurrent_submissions_of_one_key_get_at_most_the_quota(backend, tmp_path, request) -> None:
+    """Twelve POSTs at once from one key with a quota of 2: two are accepted, the rest get 429.
+    (The count used to be read before the seconds-long validation, so all of them passed it.)"""
+    import concurrent.futures
+
+    import httpx
+
+    from .conftest import db_env, start_server, submit, write_tiny_survey
+
+    pg = request.getfixturevalue("pg_url") if backend == "postgresql" else None
+    env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), "SHSAS_MAX_ACTIVE_JOBS_PER_KEY": str(SMALL_QUOTA),
+           **db_env(backend, pg)}
+    survey = write_tiny_survey(tmp_path / "tiny.h5")
+    proc, base = start_server(tmp_path, {**env}, name=f"quota-{backend}")
+    try:
+        # A long fit: the accepted jobs stay queued or running (both count) while the rest arrive.
+        spec = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
+
+        def post(_: int) -> int:
+            with httpx.Client(base_url=base, timeout=300) as c:
+                return submit(c, survey, spec).status_code
+
+        with concurrent.futures.ThreadPoolExecutor(CONCURRENT_POSTS) as pool:
+            codes = list(pool.map(post, range(CONCURRENT_POSTS)))
+        assert sorted(set(codes)) == [202, 429], codes
+        assert codes.count(202) == SMALL_QUOTA, codes
+        with httpx.Client(base_url=base, timeout=60) as c:
+            items = c.get("/reconstructions", params={"limit": 100}).json()["items"]
+            assert len(items) == SMALL_QUOTA
+            for job in items:  # free the worker for the next test
+                c.post(f"/reconstructions/{job['id']}/cancel")
+    finally:
+        proc.stop()

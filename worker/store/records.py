@@ -52,6 +52,18 @@ jobs = sa.Table(
     sa.Index("ix_shsas_jobs_status_heartbeat", "status", "heartbeat_at"),
 )
 
+#: Submissions between the quota check and their job row (upload validated, job not yet
+#: inserted): counted with the key's queued and running jobs, so concurrent submissions cannot
+#: all pass a count read before the seconds-long validation. A row whose API process died is
+#: ignored and removed once it is older than the validation could take.
+reservations = sa.Table(
+    "shsas_reservations", metadata,
+    sa.Column("id", sa.String(32), primary_key=True),
+    sa.Column("owner", sa.String(64), nullable=False),
+    sa.Column("created_at", sa.Double, nullable=False),
+    sa.Index("ix_shsas_reservations_owner", "owner"),
+)
+
 api_keys = sa.Table(
     "shsas_api_keys", metadata,
     sa.Column("id", sa.String(32), primary_key=True),
