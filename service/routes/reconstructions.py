@@ -167,6 +167,14 @@ async def get_job(job_id: str, who: Owner, store: StoreDep, settings: SettingsDe
     return json_response(JobOut.from_job(job, live=live_status(store, settings, job)))
 
 
+@router.head("/reconstructions/{job_id}", responses=ERRORS)
+async def head_job(job_id: str, who: Owner, store: StoreDep, settings: SettingsDep) -> Response:
+    """The headers ``GET /reconstructions/{id}`` would send (status, length, type), no body."""
+    full = await get_job(job_id, who, store, settings)
+    return Response(status_code=full.status_code, media_type=full.media_type,
+                    headers={"content-length": str(len(full.body))})
+
+
 @router.post("/reconstructions/{job_id}/cancel", response_model=JobOut, status_code=202, responses=ERRORS)
 def cancel_job(job_id: str, who: Owner, store: StoreDep) -> JobOut:
     """Ask a job to stop. Queued jobs end at once; running ones at their next step."""

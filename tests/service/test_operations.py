@@ -172,6 +172,15 @@ def test_head_on_artifacts_and_health(client, finished) -> None:
     assert client.head(f"/reconstructions/{finished['id']}/artifacts/nope.ply").status_code == 404
 
 
+def test_head_on_a_job_answers_like_get_without_a_body(client, finished) -> None:
+    url = f"/reconstructions/{finished['id']}"
+    got, head = client.get(url), client.head(url)
+    assert head.status_code == 200 and head.content == b""
+    assert head.headers["content-type"] == got.headers["content-type"] == "application/json"
+    assert int(head.headers["content-length"]) == len(got.content)
+    assert client.head("/reconstructions/" + "0" * 32).status_code == 404
+
+
 def test_delete_removes_a_running_job_and_its_files(client, server, survey_file) -> None:
     job = submit(client, survey_file, LONG_SPEC).json()
     wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] > 0, 120, "job to run")
