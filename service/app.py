@@ -160,6 +160,13 @@ def _offline_docs(app: FastAPI) -> None:
 
 
 def _app_from_env() -> FastAPI:
-    """``uvicorn --factory service.app:_app_from_env`` (what ``shsas serve`` runs)."""
+    """``uvicorn --factory service.app:_app_from_env``: what each API process of
+    ``shsas serve --workers N`` runs. Such a process ends with its parent (SIGKILL of serve
+    included), so no API process outlives the serve that started it."""
+    import os
+
+    from worker.local import die_with_parent
+
+    die_with_parent(os.getppid())
     return create_app()
 

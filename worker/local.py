@@ -32,7 +32,7 @@ ORPHAN_GRACE_S = 5.0
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def die_with_parent(parent_pid: int) -> None:
     """Ask Linux to send SIGTERM to this process when its parent dies (best effort)."""
     if not sys.platform.startswith("linux"):
         return
@@ -79,7 +79,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
     if parent_pid is not None:
-        _die_with_parent(parent_pid)
+        die_with_parent(parent_pid)
         threading.Thread(target=_watch_parent, args=(parent_pid,), name="shsas-parent-watch", daemon=True).start()
     store = JobStore.from_settings(settings)
     owner = worker_id()

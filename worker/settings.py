@@ -82,6 +82,22 @@ class Settings(BaseSettings):
         10, ge=0, le=19, description="scheduling niceness the workers add to themselves, so the API "
         "keeps the CPU it needs while a job trains")
 
+    # ---- HTTP connections (service/http_guard.py; docs/service.md, "Connections") ---------------
+    api_workers: int = Field(
+        1, ge=1, le=64, description="API processes `shsas serve` runs (uvicorn workers sharing the port); "
+        "the connection limits below apply to each")
+    http_header_timeout_s: float = Field(
+        10.0, gt=0, description="a request's line and headers must arrive within this many seconds of "
+        "its first byte (or of the connection's opening), else 408 and the connection closes")
+    http_keepalive_s: int = Field(5, ge=1, description="an idle keep-alive connection is closed after this")
+    http_max_header_bytes: int = Field(
+        64 * 1024, ge=8 * 1024, description="request line plus headers larger than this get 431")
+    http_max_connections: int = Field(
+        1000, ge=16, description="open connections one API process serves; past it a new one gets 503")
+    http_max_connections_per_client: int = Field(
+        200, ge=1, description="open connections from one client address to one API process; past it "
+        "503 (behind a proxy every client has the proxy's address: raise it there)")
+
     @model_validator(mode="after")
     def _limits(self) -> Settings:
         if self.job_hard_time_limit_s <= self.job_soft_time_limit_s:
