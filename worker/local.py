@@ -59,6 +59,8 @@ def _watch_parent(parent_pid: int) -> None:
 
 def run_local_worker(parent_pid: int | None = None) -> None:
     """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
+    from shsas_core.threads import size_thread_pools
+
     from .logs import configure_logging
     from .priority import lower_priority
     from .runner import execute_job, request_shutdown, worker_id
@@ -68,6 +70,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
     settings = get_settings()
     configure_logging(settings.log_format, "info")
     lower_priority(settings.worker_nice)  # before torch starts its threads
+    size_thread_pools()  # to the CPUs this child owns, not the machine's
     stopping = threading.Event()
 
     def on_term(*_) -> None:
