@@ -29,6 +29,7 @@ from . import iso, survey_routes
 from .console import add_console
 from .deps import RETRY_AFTER_S, unavailable
 from .logs import AccessLogMiddleware
+from .redact import redact_paths
 from .routes import artifacts, health, reconstructions
 from .sweeper import Sweeper
 from .uploads import UploadError
@@ -83,9 +84,10 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
 
     @app.exception_handler(UploadError)
     async def _upload_error(request: Request, exc: UploadError) -> JSONResponse:
-        _refused(request, exc.status, exc.message)
+        detail = redact_paths(exc.message, [str(settings.data_dir.resolve())])
+        _refused(request, exc.status, detail)
         headers = {"Retry-After": str(RETRY_AFTER_S)} if exc.status == 503 else None
-        return JSONResponse({"detail": exc.message}, status_code=exc.status, headers=headers)
+        return JSONResponse({"detail": detail}, status_code=exc.status, headers=headers)
 
     # The job store down (stopped, restarting, failing over, unreachable, out of connections):
     # every route that needs it answers 503 with the documented JSON error and a Retry-After,

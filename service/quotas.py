@@ -11,6 +11,7 @@ from contextlib import AsyncExitStack
 
 from anyio import to_thread
 
+from shsas_core.cost import cpu_job_seconds
 from shsas_core.methods import NEURAL
 from shsas_core.spec import ReconstructionSpec
 from shsas_core.survey import SceneBox
@@ -60,6 +61,28 @@ def check_spec_cost(spec: ReconstructionSpec, settings: Settings, box: SceneBox 
             f"{which}: {grid}^3 = {grid**3} voxels, over the limit of {settings.max_grid_voxels} "
             f"(SHSAS_MAX_GRID_VOXELS: grid {max_grid(settings.max_grid_voxels)} at most) "
             "(fix: give a smaller grid, or ask the operator to raise the limit)"))
+
+
+def check_cpu_time(spec: ReconstructionSpec, settings: Settings, summary: dict | None = None) -> None:
+    """Refuse a CPU-queue job whose estimated run time is over the CPU cap (422 with the estimate).
+
+    Without ``summary`` only the training part is known; with the validation summary the
+    survey's size and the automatic grid count too.
+    """
+    if settings.queue_for(spec.device) != settings.cpu_queue:
+        return
+    pings = int(summary.get("pings", 0)) if summary else 0
+    samples = int(summary.get("samples_per_ping", 0)) if summary else 0
+    box = box_of(summary) if summary else None
+    grid = spec.grid_count(box) if box is not None else spec.grid
+    est = cpu_job_seconds(spec, pings, samples, grid)
+    limit = settings.cpu_job_limit_s
+    if est.total_s > limit:
+        raise UploadError(422, (
+            f"spec: this job runs on the CPU queue (device {spec.device!r}) and would take {est.words()}, "
+            f"over the limit of {limit:.0f} s (SHSAS_MAX_CPU_JOB_S, default the job time limit "
+            "SHSAS_JOB_SOFT_TIME_LIMIT_S) (fix: lower iters, num_rays, num_bins or grid, or send it to a "
+            "GPU worker with device 'cuda')"))
 
 
 def check_active_jobs(active: int, settings: Settings) -> None:

@@ -65,6 +65,14 @@ class Settings(BaseSettings):
         512**3, ge=8**3, description="cost cap of a spec: grid^3 (the explicit grid, or the automatic one "
         "from the survey's scene box); a larger spec gets 422")
 
+    max_cpu_job_s: float | None = Field(
+        None, gt=0, description="a job for the CPU queue whose estimated run time on a CPU "
+        "(shsas_core/cost.py) is over this gets 422 at submission; unset: SHSAS_JOB_SOFT_TIME_LIMIT_S, "
+        "past which the job would be stopped anyway")
+    allow_default_spec: bool = Field(
+        False, description="accept a submission without a `spec` field as the default spec; "
+        "unset, a missing spec is 422 (a forgotten or misnamed field never runs a full default job)")
+
     # ---- lifecycle: retention and sweeping (worker/sweeper.py) ----------------------------------
     retention_days: float = Field(
         30.0, ge=0, description="finished jobs (succeeded, failed, cancelled) older than this are deleted "
@@ -116,6 +124,11 @@ class Settings(BaseSettings):
                 url = "postgresql+psycopg://" + url.split("://", 1)[1]
             return url
         return f"sqlite:///{(self.data_dir / 'shsas.db').resolve()}"
+
+    @property
+    def cpu_job_limit_s(self) -> float:
+        """The effective cap of a CPU-queue job's estimated run time."""
+        return self.max_cpu_job_s if self.max_cpu_job_s is not None else self.job_soft_time_limit_s
 
     @property
     def embedded(self) -> bool:

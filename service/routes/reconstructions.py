@@ -26,7 +26,7 @@ from worker.store import STATUSES, IdempotencyConflict, Job
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep, json_response
 from ..lookup import job_of
 from ..models import ErrorOut, JobOut, JobPage
-from ..quotas import box_of, check_spec_cost, hold_slot
+from ..quotas import box_of, check_cpu_time, check_spec_cost, hold_slot
 from ..status import live_status
 from ..sweeper import upload_dir
 from ..uploads import UploadError, receive_upload
@@ -84,12 +84,18 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
         if up.size == 0:
             raise UploadError(422, f"survey '{up.display_name}': the uploaded file is empty "
                                    "(fix: check the path given to the upload)")
+        if "spec" not in up.fields and not settings.allow_default_spec:
+            raise UploadError(422, "spec: missing form field 'spec' (fix: send the ReconstructionSpec as JSON "
+                                   "in the multipart field 'spec', e.g. -F 'spec={\"methods\":[\"backprojection\"]}'; "
+                                   "-F 'spec={}' runs every default; the operator can accept a missing spec "
+                                   "with SHSAS_ALLOW_DEFAULT_SPEC=1)")
         spec_text = up.fields.get("spec", "").strip() or "{}"
         try:
             spec = ReconstructionSpec.model_validate_json(spec_text)
         except pydantic.ValidationError as exc:
             raise UploadError(422, spec_error(exc)) from None
         check_spec_cost(spec, settings)
+        check_cpu_time(spec, settings)
         spec_json = spec.model_dump(mode="json")
         request_digest = hashlib.sha256(
             (json.dumps(spec_json, sort_keys=True) + up.sha256).encode()).hexdigest()
@@ -106,6 +112,7 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
             upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
             display_name=up.display_name, spec=spec_json, worker_memory_bytes=settings.worker_memory_bytes))
         check_spec_cost(spec, settings, box_of(checked["summary"]))  # the automatic grid, now known
+        check_cpu_time(spec, settings, checked["summary"])
         job_id = uuid.uuid4().hex
         in_dir, _ = job_paths(settings, job_id)
         in_dir.mkdir(parents=True)

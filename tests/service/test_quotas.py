@@ -5,8 +5,15 @@ from __future__ import annotations
 
 import pytest
 
-from service.quotas import check_active_jobs, check_spec_cost, max_grid, train_samples
+from service.quotas import (
+    check_active_jobs,
+    check_cpu_time,
+    check_spec_cost,
+    max_grid,
+    train_samples,
+)
 from service.uploads import UploadError
+from shsas_core.cost import CPU_FIXED_S, cpu_job_seconds
 from shsas_core.spec import PRESETS, ReconstructionSpec
 from shsas_core.survey import SceneBox
 from worker.settings import Settings
@@ -50,6 +57,36 @@ def test_grid_cap_checks_the_explicit_and_the_automatic_grid() -> None:
         check_spec_cost(ReconstructionSpec(), settings, SceneBox())
     assert "automatic" in err.value.message and "100^3" in err.value.message
     assert [max_grid(n) for n in (512**3, 512**3 - 1, 100)] == [512, 511, 4]
+
+
+def test_cpu_estimate_adds_its_parts() -> None:
+    """By hand: 2 neural methods x 1000 iterations x 2 x 100 x 10 samples at 6e5/s, 100 pings on
+    20^3 voxels at 1.5e8/s, 100 x 9000 samples at 4.5e6/s."""
+    spec = ReconstructionSpec(methods=["backprojection", "reed", "shsas"], iters=1000, pings_per_batch=2,
+                              num_rays=100, num_bins=10, device="cpu")
+    est = cpu_job_seconds(spec, pings=100, samples_per_ping=9000, grid=20)
+    assert est.train_s == 2 * 1000 * 2 * 100 * 10 / 6e5
+    assert est.backprojection_s == 100 * 20**3 / 1.5e8 and est.signal_s == 100 * 9000 / 4.5e6
+    assert est.total_s == CPU_FIXED_S + est.train_s + est.backprojection_s + est.signal_s
+    assert cpu_job_seconds(ReconstructionSpec(methods=["backprojection"], iters=200_000)).train_s == 0
+
+
+def test_cpu_cap_refuses_days_on_a_cpu_with_the_estimate_and_only_on_the_cpu_queue() -> None:
+    settings = Settings()  # the cap defaults to the 6 h job time limit
+    paper_on_cpu = ReconstructionSpec.model_validate({**PRESETS["paper"], "device": "cpu"})
+    with pytest.raises(UploadError) as err:
+        check_cpu_time(paper_on_cpu, settings)
+    assert err.value.status == 422 and "SHSAS_MAX_CPU_JOB_S" in err.value.message
+    n_neural = sum(m in ("reed", "shsas") for m in paper_on_cpu.methods)
+    hours = n_neural * 50_000 * 960_000 / 6e5 / 3600  # iterations x samples each / samples per s
+    assert f"training {hours:.1f} h" in err.value.message
+    check_cpu_time(paper_on_cpu.model_copy(update={"device": "cuda"}), settings)  # a GPU job: not capped
+    for spec in (QUICK_SPEC, LONG_SPEC, RESUMABLE_SPEC, BLOCKER_SPEC, {**LONG_SPEC, "iters": 200_000}):
+        check_cpu_time(ReconstructionSpec.model_validate({**spec, "device": "cpu"}), settings)
+    tight = Settings(max_cpu_job_s=60)
+    with pytest.raises(UploadError, match="backprojection"):  # known once the survey is validated
+        check_cpu_time(ReconstructionSpec(methods=["backprojection"], grid=256, device="cpu"), tight,
+                       {"pings": 2000, "samples_per_ping": 1000})
 
 
 def test_quota_is_429_naming_the_limit() -> None:
