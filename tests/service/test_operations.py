@@ -274,7 +274,9 @@ def _keys_create(env: dict[str, str], name: str) -> str:
 def test_logs_say_who_did_what_and_why_never_the_secret(tmp_path, survey_file) -> None:
     env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), **FAST_TIMINGS,
            # every job fails in the worker past 3 s: a failure whose reason the worker must log
-           "SHSAS_JOB_SOFT_TIME_LIMIT_S": "3", "SHSAS_JOB_HARD_TIME_LIMIT_S": "600"}
+           "SHSAS_JOB_SOFT_TIME_LIMIT_S": "3", "SHSAS_JOB_HARD_TIME_LIMIT_S": "600",
+           # the CPU cap would otherwise follow the 3 s limit and refuse the job at submission
+           "SHSAS_MAX_CPU_JOB_S": "86400"}
     proc, base = start_server(tmp_path, env, log_level="info")
     try:
         key_a, key_b = _keys_create(env, "alice"), _keys_create(env, "bob")
