@@ -163,12 +163,19 @@ def _offline_docs(app: FastAPI) -> None:
 
 def _app_from_env() -> FastAPI:
     """``uvicorn --factory service.app:_app_from_env``: what each API process of
-    ``shsas serve --workers N`` runs. Such a process ends with its parent (SIGKILL of serve
-    included), so no API process outlives the serve that started it."""
+    ``shsas serve --workers N`` runs. Started by serve (``SERVE_PID_ENV`` names it), such a
+    process ends with its parent (SIGKILL of serve included), so no API process outlives the
+    serve that started it; started any other way it is left alone."""
     import os
 
     from worker.local import die_with_parent
 
-    die_with_parent(os.getppid())
+    serve_pid = os.environ.get(SERVE_PID_ENV, "")
+    if serve_pid.isdigit():  # also ends this process now if serve died while it was starting
+        die_with_parent(int(serve_pid))
     return create_app()
+
+
+#: Set by ``shsas serve`` to its pid for the API processes it starts.
+SERVE_PID_ENV = "SHSAS_SERVE_PID"
 

@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         import uvicorn
 
-        from service.app import create_app
+        from service.app import SERVE_PID_ENV, create_app
         from service.http_guard import GuardedHttpToolsProtocol, raise_fd_limit
         from worker.local import LocalWorkerSupervisor
         from worker.settings import get_settings
@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"shsas serve: http://{args.host}:{args.port}/docs  data={settings.data_dir}  ({mode})", flush=True)
         workers = args.workers or settings.api_workers
         raise_fd_limit(settings)
+        os.environ[SERVE_PID_ENV] = str(os.getpid())  # its API processes die with it
         # One API process gets the app built here; several each build their own (an import
         # string and a factory is what uvicorn's worker processes need).
         uvicorn.run(app if workers == 1 else "service.app:_app_from_env", factory=workers > 1,
