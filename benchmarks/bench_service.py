@@ -16,8 +16,20 @@
    on an idle 2-core machine. ``SHSAS_WORKER_NICE=0`` in the environment runs the worker at the
    API's priority, for comparison.
 
+3. Soak (``--soak``, instead of 1 and 2): an embedded server (``--api-workers`` API processes,
+   the local worker training a job) under ``--soak-seconds`` (default 1800) of mixed traffic:
+   ``--clients`` paced pollers of the job's status (one GET per ``--interval`` each) plus one
+   hostile client cycling through slowloris connections, oversized and endless headers, junk
+   and truncated multipart bodies, non-surveys, zip archives of junk, bad keys, unknown ids and
+   HEAD/DELETE on them, and valid tiny submissions cancelled and deleted at once. Prints the 5xx
+   count (pollers and hostile client), the temporary bytes left behind (the server's private
+   TMPDIR plus ``uploads/``, after the traffic stops), the API's RSS at start and end (all API
+   processes) and the pollers' p50/p99. Goal (issue 38): no 5xx, no leaked bytes, RSS within
+   300 MiB of its start, poll p99 < 100 ms on an otherwise idle 2-core machine.
+
     PYTHONPATH=$PWD python benchmarks/bench_service.py [--seconds 30] [--clients 100] [--upload-gb 1]
     PYTHONPATH=$PWD python benchmarks/bench_service.py --upload-gb 0 --closed-loop 0   # the paced figure only
+    PYTHONPATH=$PWD python benchmarks/bench_service.py --soak [--soak-seconds 1800] [--api-workers 2]
 
 The client runs on the same machine as the server and competes with it for CPU.
 """
@@ -81,10 +93,12 @@ def write_big_survey(path: Path, gigabytes: float, samples_per_ping: int = 65536
     return path.stat().st_size
 
 
-def start_server(data: Path, log: Path, *extra: str) -> tuple[subprocess.Popen, str]:
+def start_server(data: Path, log: Path, *extra: str, env_extra: dict[str, str] | None = None
+                 ) -> tuple[subprocess.Popen, str]:
     port = free_port()
     env = {**os.environ, "PYTHONPATH": str(REPO), "SHSAS_DATA_DIR": str(data),
-           "SHSAS_MAX_UPLOAD_BYTES": str(8 * 1024**3), "SHSAS_VALIDATE_MEMORY_BYTES": str(2 * 1024**3)}
+           "SHSAS_MAX_UPLOAD_BYTES": str(8 * 1024**3), "SHSAS_VALIDATE_MEMORY_BYTES": str(2 * 1024**3),
+           **(env_extra or {})}
     env.pop("SHSAS_BROKER_URL", None)
     env.pop("SHSAS_DATABASE_URL", None)
     proc = subprocess.Popen([sys.executable, "-m", "shsas_core.cli", "serve", "--port", str(port),
@@ -330,6 +344,223 @@ def bench_polling(tmp: Path, clients: int, seconds: float, interval: float, clos
         stop(proc)
 
 
+# ---- soak: mixed hostile and valid traffic while a job trains ---------------------------------
+
+def tree_bytes(*roots: Path) -> int:
+    """Bytes of the regular files under ``roots`` (missing roots count 0)."""
+    total = 0
+    for root in roots:
+        for dirpath, _, files in os.walk(root):
+            for f in files:
+                with contextlib.suppress(OSError):
+                    total += os.lstat(os.path.join(dirpath, f)).st_size
+    return total
+
+
+def api_pids(serve_pid: int, worker: int | None) -> list[int]:
+    """serve itself and its uvicorn worker processes (not the job worker, not helpers)."""
+    pids = [serve_pid]
+    for task in Path(f"/proc/{serve_pid}/task").iterdir():
+        for pid in (task / "children").read_text().split():
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+            if int(pid) != worker and b"spawn_main" in cmd:
+                pids.append(int(pid))
+    return pids
+
+
+def api_rss_mib(pids: list[int]) -> float:
+    total = 0
+    for pid in pids:
+        with contextlib.suppress(OSError, KeyError):
+            total += proc_kb(pid, "VmRSS")
+    return total / 1024
+
+
+class Tally:
+    def __init__(self) -> None:
+        self.status: dict[str, int] = {}
+        self.server_errors = 0
+        self.lat: list[float] = []
+
+    def add(self, what: str, status: int) -> None:
+        key = f"{what} {status}"
+        self.status[key] = self.status.get(key, 0) + 1
+        if status >= 500 and status != 503:
+            self.server_errors += 1
+        elif status == 503:  # allowed only as a refusal with Retry-After; counted apart
+            self.status["503 (refusals)"] = self.status.get("503 (refusals)", 0) + 1
+
+
+async def _raw(host: str, port: int, data: bytes, read_s: float = 120.0) -> int:
+    """Send ``data`` on a fresh connection; the answer's status (0 if none before the close)."""
+    try:
+        reader, writer = await asyncio.wait_for(asyncio.open_connection(host, port), 5)
+    except (TimeoutError, OSError):
+        return 0
+    try:
+        with contextlib.suppress(OSError):
+            writer.write(data)
+            await writer.drain()
+        head = await asyncio.wait_for(reader.read(64), read_s)
+        return int(head[9:12]) if head.startswith(b"HTTP/1.1 ") else 0
+    except (TimeoutError, OSError, ValueError):
+        return 0
+    finally:
+        writer.close()
+
+
+async def _slowloris(host: str, port: int, n: int, seconds: float) -> int:
+    """``n`` connections trickling a header byte a second for up to ``seconds``; how many the
+    server cut off before the end."""
+    conns = []
+    for _ in range(n):
+        with contextlib.suppress(OSError, asyncio.TimeoutError):
+            conns.append(await asyncio.wait_for(asyncio.open_connection(host, port), 5))
+    for _, w in conns:
+        with contextlib.suppress(OSError):
+            w.write(b"GET /healthz HTTP/1.1\r\nHost: x\r\n")
+    end, cut = time.monotonic() + seconds, set()
+    while time.monotonic() < end and len(cut) < len(conns):
+        await asyncio.sleep(1.0)
+        for i, (r, w) in enumerate(conns):
+            if i in cut:
+                continue
+            if r.at_eof() or w.is_closing():
+                cut.add(i)
+                continue
+            with contextlib.suppress(OSError):
+                w.write(b"X")
+    for _, w in conns:
+        w.close()
+    return len(cut)
+
+
+async def hostile_loop(base: str, end: float, tally: Tally, survey: bytes, junk_zip: bytes) -> None:
+    host, port_s = base.removeprefix("http://").split(":")
+    port = int(port_s)
+    rng = np.random.default_rng(1)
+
+    def multipart(fields: list[tuple[str, str, bytes]], boundary: str = "soakb") -> bytes:
+        out = b""
+        for name, filename, data in fields:
+            disp = f'form-data; name="{name}"' + (f'; filename="{filename}"' if filename else "")
+            out += f"--{boundary}\r\nContent-Disposition: {disp}\r\n\r\n".encode() + data + b"\r\n"
+        return out + f"--{boundary}--\r\n".encode()
+
+    def post(body: bytes, length: int | None = None, extra: str = "") -> bytes:
+        n = len(body) if length is None else length
+        return (f"POST /reconstructions HTTP/1.1\r\nHost: x\r\nContent-Type: multipart/form-data; "
+                f"boundary=soakb\r\nContent-Length: {n}\r\n{extra}Connection: close\r\n\r\n").encode() + body
+
+    spec = json.dumps({"methods": ["backprojection"], "grid": 16, "device": "cpu"}).encode()
+    async with httpx.AsyncClient(base_url=base, timeout=120) as c:
+        round_ = 0
+        while time.monotonic() < end:
+            round_ += 1
+            cut = await _slowloris(host, port, 50, 20)
+            tally.status["slowloris connections cut"] = tally.status.get("slowloris connections cut", 0) + cut
+            tally.add("big header", await _raw(host, port, b"GET /healthz HTTP/1.1\r\nX: " + b"a" * 200_000 + b"\r\n\r\n"))
+            tally.add("junk request line", await _raw(host, port, bytes(rng.integers(0, 256, 300, dtype=np.uint8)) + b"\r\n\r\n"))
+            tally.add("non-survey", await _raw(host, port, post(multipart([("survey", "x.h5", rng.bytes(50_000)), ("spec", "", spec)]))))
+            tally.add("junk zip", await _raw(host, port, post(multipart([("survey", "scan.zip", junk_zip), ("spec", "", spec)]))))
+            # the body never completes: the server waits for it, the client gives up (status 0)
+            tally.add("truncated body", await _raw(host, port, post(multipart([("survey", "x.h5", survey)])[:2000], length=len(survey) + 500), 10))
+            tally.add("no spec", await _raw(host, port, post(multipart([("survey", "x.h5", survey)]))))
+            tally.add("bad boundary", await _raw(host, port, post(b"--nope\r\n\r\n")))
+            for method, path in (("GET", "/reconstructions/" + "f" * 32), ("HEAD", "/reconstructions/zz"),
+                                 ("DELETE", "/reconstructions/" + "0" * 32), ("GET", "/reconstructions?cursor=%%%"),
+                                 ("GET", "/reconstructions/x/artifacts/../../etc/passwd")):
+                tally.add(f"{method} junk", (await c.request(method, path)).status_code)
+            tally.add("bad key", (await c.get("/reconstructions", headers={"Authorization": "Bearer shsas_x_y"})).status_code)
+            r = await c.post("/reconstructions", files={"survey": ("tiny.h5", survey)}, data={"spec": spec.decode()})
+            tally.add("valid submit", r.status_code)
+            if r.status_code == 202:
+                jid = r.json()["id"]
+                tally.add("cancel", (await c.post(f"/reconstructions/{jid}/cancel")).status_code)
+                tally.add("delete", (await c.delete(f"/reconstructions/{jid}")).status_code)
+
+
+async def soak_pollers(base: str, job_id: str, clients: int, end: float, interval: float, tally: Tally) -> None:
+    host, port = base.removeprefix("http://").split(":")
+    request = f"GET /reconstructions/{job_id} HTTP/1.1\r\nHost: {host}\r\n\r\n".encode()
+
+    async def one(k: int) -> None:
+        reader, writer = await asyncio.open_connection(host, int(port))
+        due = time.perf_counter() + interval * k / clients
+        try:
+            while time.monotonic() < end:
+                await asyncio.sleep(max(0.0, due - time.perf_counter()))
+                t = time.perf_counter()
+                try:
+                    status = await _get(reader, writer, request)
+                except (OSError, asyncio.IncompleteReadError, ValueError):
+                    status = 0  # closed (keep-alive timeout between polls): reconnect
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, int(port))
+                    status = await _get(reader, writer, request)
+                tally.lat.append(time.perf_counter() - t)
+                if status != 200:
+                    tally.add("poll", status)
+                due += interval
+        finally:
+            writer.close()
+
+    await asyncio.gather(*(one(k) for k in range(clients)))
+
+
+def bench_soak(tmp: Path, seconds: float, clients: int, interval: float, api_workers: int) -> None:
+    import zipfile
+
+    from shsas_core.io import write_survey
+    from tests.conftest import make_survey
+
+    survey = write_survey(make_survey(), tmp / "tiny.h5")
+    with zipfile.ZipFile(tmp / "junk.zip", "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("Coordinates.csv", "flight,x\n1,zz\n")
+        z.writestr("zeros.bin", b"\0" * 50_000_000)  # compresses to ~50 kB
+    server_tmp = tmp / "server-tmp"
+    server_tmp.mkdir()
+    data = tmp / "data-soak"
+    proc, base = start_server(data, tmp / "soak.log", "--workers", str(api_workers),
+                              env_extra={"TMPDIR": str(server_tmp)})
+    try:
+        with open(survey, "rb") as fh:
+            job = httpx.post(base + "/reconstructions", files={"survey": ("tiny.h5", fh)},
+                             data={"spec": json.dumps(LONG_SPEC)}, timeout=60).json()
+        deadline = time.monotonic() + 300
+        while httpx.get(f"{base}/reconstructions/{job['id']}").json()["progress"] <= 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError("job did not start training")
+            time.sleep(0.5)
+        worker = local_worker_pid(proc.pid)
+        pids = api_pids(proc.pid, worker)
+        rss0, temp0 = api_rss_mib(pids), tree_bytes(server_tmp, data / "uploads")
+        print(f"soak: {seconds:.0f} s, {clients} pollers every {interval:g} s + 1 hostile client, "
+              f"{len(pids)} API process(es), job {job['id']} training; API RSS {rss0:.0f} MiB at start")
+        tally = Tally()
+        end = time.monotonic() + seconds
+
+        async def both() -> None:
+            await asyncio.gather(soak_pollers(base, job["id"], clients, end, interval, tally),
+                                 hostile_loop(base, end, tally, survey.read_bytes(), (tmp / "junk.zip").read_bytes()))
+
+        asyncio.run(both())
+        time.sleep(5)  # let the last validations and sweeps finish
+        rss1, temp1 = api_rss_mib(api_pids(proc.pid, worker)), tree_bytes(server_tmp, data / "uploads")
+        a = np.asarray(tally.lat) * 1000
+        final = httpx.get(f"{base}/reconstructions/{job['id']}").json()
+        print(f"  5xx answers (not 503 refusals): {tally.server_errors}")
+        print(f"  temp bytes left: {temp1 - temp0} (server TMPDIR + uploads/: {temp0} before, {temp1} after)")
+        print(f"  API RSS: {rss0:.0f} -> {rss1:.0f} MiB (delta {rss1 - rss0:+.0f} MiB)")
+        print(f"  status polls: {len(a)}, p50 {np.percentile(a, 50):.1f} ms, p99 {np.percentile(a, 99):.1f} ms, "
+              f"max {a.max():.1f} ms")
+        print(f"  job: {final['status']} at progress {final['progress']:.3f}")
+        print("  answers: " + ", ".join(f"{k}: {v}" for k, v in sorted(tally.status.items())))
+        httpx.post(f"{base}/reconstructions/{job['id']}/cancel")
+    finally:
+        stop(proc)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=30.0, help="polling duration per mode (max 120)")
@@ -340,11 +571,18 @@ def main() -> None:
                     help="paced mode's client: httpx.AsyncClient, or the minimal raw HTTP/1.1 client "
                     "(~10x less client CPU per request, for machines where the client is the bottleneck)")
     ap.add_argument("--upload-gb", type=float, default=1.0, help="survey size for the upload test (0 = skip)")
+    ap.add_argument("--soak", action="store_true", help="run the soak instead (see 3. above)")
+    ap.add_argument("--soak-seconds", type=float, default=1800.0, help="soak duration (default 30 min)")
+    ap.add_argument("--api-workers", type=int, default=1, help="soak: API processes (shsas serve --workers)")
     args = ap.parse_args()
     seconds = min(args.seconds, 120.0)
     print(f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f} at start")
     with tempfile.TemporaryDirectory(prefix="shsas-bench-") as d:
         tmp = Path(d)
+        if args.soak:
+            bench_soak(tmp, args.soak_seconds, args.clients, args.interval or 1.0, args.api_workers)
+            print(f"load average {os.getloadavg()[0]:.1f} at end")
+            return
         if args.upload_gb > 0:
             bench_upload(tmp, args.upload_gb)
         bench_polling(tmp, args.clients, seconds, args.interval, bool(args.closed_loop), args.client)

@@ -12,6 +12,7 @@ import logging
 from contextlib import asynccontextmanager
 from pathlib import Path
 
+import sqlalchemy as sa
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exception_handlers import http_exception_handler, request_validation_exception_handler
 from fastapi.exceptions import RequestValidationError
@@ -26,7 +27,9 @@ from worker.store import JobStore
 
 from . import iso, survey_routes
 from .console import add_console
+from .deps import RETRY_AFTER_S, unavailable
 from .logs import AccessLogMiddleware
+from .redact import redact_paths
 from .routes import artifacts, bundle, health, reconstructions
 from .sweeper import Sweeper
 from .uploads import UploadError
@@ -81,8 +84,22 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
 
     @app.exception_handler(UploadError)
     async def _upload_error(request: Request, exc: UploadError) -> JSONResponse:
-        _refused(request, exc.status, exc.message)
-        return JSONResponse({"detail": exc.message}, status_code=exc.status)
+        detail = redact_paths(exc.message, [str(settings.data_dir.resolve())])
+        _refused(request, exc.status, detail)
+        headers = {"Retry-After": str(RETRY_AFTER_S)} if exc.status == 503 else None
+        return JSONResponse({"detail": detail}, status_code=exc.status, headers=headers)
+
+    # The job store down (stopped, restarting, failing over, unreachable, out of connections):
+    # every route that needs it answers 503 with the documented JSON error and a Retry-After,
+    # never a bare 500. What failed is logged here; the client is told only which dependency.
+    @app.exception_handler(sa.exc.OperationalError)
+    @app.exception_handler(sa.exc.InterfaceError)
+    @app.exception_handler(sa.exc.TimeoutError)
+    @app.exception_handler(sa.exc.DisconnectionError)
+    async def _store_down(request: Request, exc: Exception) -> JSONResponse:
+        log.warning("job store unavailable: %s %s: %s", request.method, request.url.path,
+                    str(exc).splitlines()[0][:300], extra={"status": 503, "reason": type(exc).__name__})
+        return unavailable("the job store is unavailable; retry later")
 
     # Submissions refused before the handler runs (no or a bad key, a bad header) are logged
     # with their reason too; other routes' 4xx are in the access log.
@@ -146,6 +163,20 @@ def _offline_docs(app: FastAPI) -> None:
 
 
 def _app_from_env() -> FastAPI:
-    """``uvicorn --factory service.app:_app_from_env`` (what ``shsas serve`` runs)."""
+    """``uvicorn --factory service.app:_app_from_env``: what each API process of
+    ``shsas serve --workers N`` runs. Started by serve (``SERVE_PID_ENV`` names it), such a
+    process ends with its parent (SIGKILL of serve included), so no API process outlives the
+    serve that started it; started any other way it is left alone."""
+    import os
+
+    from worker.local import die_with_parent
+
+    serve_pid = os.environ.get(SERVE_PID_ENV, "")
+    if serve_pid.isdigit():  # also ends this process now if serve died while it was starting
+        die_with_parent(int(serve_pid))
     return create_app()
+
+
+#: Set by ``shsas serve`` to its pid for the API processes it starts.
+SERVE_PID_ENV = "SHSAS_SERVE_PID"
 

@@ -20,6 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "only loopback clients are served)")
     p.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
     p.add_argument("--data-dir", help="overrides SHSAS_DATA_DIR")
+    p.add_argument("--workers", type=int, help="API processes sharing the port (overrides SHSAS_API_WORKERS, "
+                   "default 1); the embedded worker runs at lower priority than all of them")
     p.add_argument("--no-worker", action="store_true", help="do not start the embedded local worker")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.set_defaults(func=run)
@@ -33,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         import uvicorn
 
-        from service.app import create_app
+        from service.app import SERVE_PID_ENV, create_app
+        from service.http_guard import GuardedHttpToolsProtocol, raise_fd_limit
         from worker.local import LocalWorkerSupervisor
         from worker.settings import get_settings
     except ImportError as exc:
@@ -49,6 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from worker.logs import configure_logging
 
     configure_logging(settings.log_format, args.log_level)
+    if args.workers is not None and args.workers < 1:
+        raise ShsasError(f"serve: --workers must be at least 1 (got {args.workers})")
     app = create_app(settings)
     # uvicorn shuts down gracefully on SIGTERM, then re-raises it with the handler it found:
     # the default one would end this process before the `finally` below stops the worker.
@@ -59,7 +64,15 @@ def run(args: argparse.Namespace) -> int:
         mode = "embedded local worker" if sup else ("broker " + settings.broker_url.split("@")[-1]
                                                     if settings.broker_url else "no worker")
         print(f"shsas serve: http://{args.host}:{args.port}/docs  data={settings.data_dir}  ({mode})", flush=True)
-        uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level, access_log=False)
+        workers = args.workers or settings.api_workers
+        raise_fd_limit(settings)
+        os.environ[SERVE_PID_ENV] = str(os.getpid())  # its API processes die with it
+        # One API process gets the app built here; several each build their own (an import
+        # string and a factory is what uvicorn's worker processes need).
+        uvicorn.run(app if workers == 1 else "service.app:_app_from_env", factory=workers > 1,
+                    workers=workers, host=args.host, port=args.port, log_level=args.log_level,
+                    access_log=False, http=GuardedHttpToolsProtocol,
+                    timeout_keep_alive=settings.http_keepalive_s)
     finally:
         if sup:
             sup.stop()

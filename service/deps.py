@@ -10,7 +10,7 @@ from typing import Annotated
 
 import pydantic
 from fastapi import Depends, Request
-from fastapi.responses import Response
+from fastapi.responses import JSONResponse, Response
 
 from worker.settings import Settings
 from worker.store import JobStore
@@ -43,3 +43,13 @@ SettingsDep = Annotated[Settings, Depends(current_settings)]
 def json_response(model: pydantic.BaseModel, status: int = 200) -> Response:
     """The model serialised once; returning a Response skips FastAPI's second validation pass."""
     return Response(model.model_dump_json(), status_code=status, media_type="application/json")
+
+
+#: Seconds a client is asked to wait (``Retry-After``) when a dependency (job store, broker) or
+#: a bound of this process (connections, concurrent validations) makes the API answer 503.
+RETRY_AFTER_S = 5
+
+
+def unavailable(detail: str) -> JSONResponse:
+    """The 503 answer: the documented JSON error plus ``Retry-After``."""
+    return JSONResponse({"detail": detail}, status_code=503, headers={"Retry-After": str(RETRY_AFTER_S)})

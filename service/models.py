@@ -123,6 +123,8 @@ class ArtifactList(BaseModel):
 class Health(BaseModel):
     status: str
     checks: dict[str, str] = Field(default_factory=dict)
+    #: when not ready: which dependencies are down, in words (the other 503s' ``detail``)
+    detail: str | None = None
 
 
 class ErrorOut(BaseModel):

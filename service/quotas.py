@@ -7,11 +7,17 @@ and words the refusal, naming the limit and the setting that raises it.
 
 from __future__ import annotations
 
+from contextlib import AsyncExitStack
+
+from anyio import to_thread
+
+from shsas_core.cost import cpu_job_seconds
 from shsas_core.methods import NEURAL
 from shsas_core.spec import ReconstructionSpec
 from shsas_core.survey import SceneBox
 from shsas_core.volume import auto_grid_count
 from worker.settings import Settings
+from worker.store import JobStore
 
 from .uploads import UploadError
 
@@ -57,6 +63,28 @@ def check_spec_cost(spec: ReconstructionSpec, settings: Settings, box: SceneBox 
             "(fix: give a smaller grid, or ask the operator to raise the limit)"))
 
 
+def check_cpu_time(spec: ReconstructionSpec, settings: Settings, summary: dict | None = None) -> None:
+    """Refuse a CPU-queue job whose estimated run time is over the CPU cap (422 with the estimate).
+
+    Without ``summary`` only the training part is known; with the validation summary the
+    survey's size and the automatic grid count too.
+    """
+    if settings.queue_for(spec.device) != settings.cpu_queue:
+        return
+    pings = int(summary.get("pings", 0)) if summary else 0
+    samples = int(summary.get("samples_per_ping", 0)) if summary else 0
+    box = box_of(summary) if summary else None
+    grid = spec.grid_count(box) if box is not None else spec.grid
+    est = cpu_job_seconds(spec, pings, samples, grid)
+    limit = settings.cpu_job_limit_s
+    if est.total_s > limit:
+        raise UploadError(422, (
+            f"spec: this job runs on the CPU queue (device {spec.device!r}) and would take {est.words()}, "
+            f"over the limit of {limit:.0f} s (SHSAS_MAX_CPU_JOB_S, default the job time limit "
+            "SHSAS_JOB_SOFT_TIME_LIMIT_S) (fix: lower iters, num_rays, num_bins or grid, or send it to a "
+            "GPU worker with device 'cuda')"))
+
+
 def check_active_jobs(active: int, settings: Settings) -> None:
     """Refuse a submission past the key's quota of queued and running jobs (429)."""
     limit = settings.max_active_jobs_per_key
@@ -65,6 +93,26 @@ def check_active_jobs(active: int, settings: Settings) -> None:
             f"this API key already has {active} queued or running jobs, the limit is {limit} "
             "(SHSAS_MAX_ACTIVE_JOBS_PER_KEY) (fix: wait for some to finish, or cancel some with "
             "POST /reconstructions/{id}/cancel, then resubmit)"))
+
+
+def reservation_ttl_s(settings: Settings) -> float:
+    """How long a submission's quota slot may stay reserved: the validation's time limit plus a
+    margin for the job's insert and dispatch. Older reservations belong to a dead API process."""
+    return settings.validate_timeout_s + 300.0
+
+
+async def hold_slot(held: AsyncExitStack, store: JobStore, owner: str, settings: Settings) -> None:
+    """Reserve one of ``owner``'s quota slots until ``held`` closes, or refuse with 429.
+
+    The count and the reservation are one transaction in the job store, so N concurrent
+    submissions of one key get at most the quota's free slots between them.
+    """
+    rid, in_use = await to_thread.run_sync(
+        store.reserve_slot, owner, settings.max_active_jobs_per_key, reservation_ttl_s(settings))
+    if rid is None:
+        check_active_jobs(in_use, settings)
+        return
+    held.push_async_callback(to_thread.run_sync, store.release_slot, rid)
 
 
 def box_of(summary: dict) -> SceneBox | None:

@@ -27,7 +27,7 @@ from scipy.signal import windows
 
 from .errors import ShsasError
 from .progress import ProgressFn, StopFn, check_stop, no_progress
-from .signal import analytic_samples, replica_in_frame
+from .signal import analytic_samples, replica_in_frame, row_block
 from .survey import Survey
 
 
@@ -113,7 +113,8 @@ def wiener_deconvolve(
     noise_level: float = 1e-2,
     taper: str = "taylor",
     taper_param: float = 35.0,
-    chunk: int = 1024,
+    chunk: int | None = None,
+    should_stop: StopFn | None = None,
 ) -> np.ndarray:
     """Closed-form Wiener deconvolution of complex signals by a complex replica.
 
@@ -124,7 +125,8 @@ def wiener_deconvolve(
         band: (low, high) Hz, frequencies kept (in the signals' frame, may be negative).
         noise_level: ε relative to ``max |P|²``.
         taper, taper_param: target band shape (see :class:`DeconvConfig`).
-        chunk: pings per FFT batch (bounds memory).
+        chunk: pings per FFT batch (bounds memory; default :func:`~shsas_core.signal.row_block`).
+        should_stop: polled between batches (:mod:`shsas_core.progress`).
     Returns:
         (N, T) complex64 ``s_PD`` on the same time axis; an impulse of amplitude A -> peak ≈ A.
     """
@@ -147,7 +149,9 @@ def wiener_deconvolve(
     gain = float(np.real(np.sum(power / (power + noise_level * power.max()) * w))) / nfft
     filt = filt / gain
     out = np.empty((n, t), dtype=np.complex64)
+    chunk = chunk or row_block(nfft)
     for a in range(0, n, chunk):
+        check_stop(should_stop)
         spec = sfft.fft(signals[a : a + chunk], nfft, axis=-1)
         out[a : a + chunk] = sfft.ifft(spec * filt[None, :], axis=-1)[:, :t]
     return out
@@ -160,7 +164,8 @@ def band_filter(
     *,
     taper: str = "taylor",
     taper_param: float = 35.0,
-    chunk: int = 1024,
+    chunk: int | None = None,
+    should_stop: StopFn | None = None,
 ) -> np.ndarray:
     """Zero-phase filter to ``band`` with the Wiener taper (unit gain at the taper's peak).
 
@@ -180,7 +185,9 @@ def band_filter(
     w[idx] = _band_taper(idx.size, taper, taper_param)
     w = w / (w.sum() / nfft)  # unit peak for a unit impulse
     out = np.empty((n, t), dtype=np.complex64)
+    chunk = chunk or row_block(nfft)
     for a in range(0, n, chunk):
+        check_stop(should_stop)
         out[a : a + chunk] = sfft.ifft(sfft.fft(signals[a : a + chunk], nfft, axis=-1) * w, axis=-1)[:, :t]
     return out
 
@@ -205,7 +212,7 @@ def deconvolve(
         A ``meta.pulse_deconvolved`` survey gets its analytic signal whatever ``config`` says.
     """
     config = config or DeconvConfig()
-    s = analytic_samples(survey)
+    s = analytic_samples(survey, should_stop)
     check_stop(should_stop)
     # samples deconvolved before import: a second deconvolution would divide the pulse out twice
     if config.method == "none" or survey.meta.pulse_deconvolved:
@@ -219,7 +226,8 @@ def deconvolve(
             check_stop(should_stop)
             out[a : a + step] = wiener_deconvolve(
                 s[a : a + step], replica_in_frame(survey), survey.meta.fs, signal_band(survey),
-                noise_level=config.noise_level, taper=config.taper, taper_param=config.taper_param)
+                noise_level=config.noise_level, taper=config.taper, taper_param=config.taper_param,
+                should_stop=should_stop)
             progress(min(a + step, n) / n, "deconvolution", {})
         return out
     if config.method == "neural":
@@ -231,7 +239,7 @@ def deconvolve(
                                 band_centre=0.5 * (lo + hi) / survey.meta.fs)
         if config.neural.project_to_band:
             out = band_filter(out, survey.meta.fs, (lo, hi), taper=config.taper,
-                              taper_param=config.taper_param)
+                              taper_param=config.taper_param, should_stop=should_stop)
         return out
     raise ShsasError(f"deconvolution: unknown method '{config.method}' (use wiener, neural or none)")
 

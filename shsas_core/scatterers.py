@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import trimesh
 
 from .errors import ShsasError
+from .threads import owned_cpus
 
 
 @dataclasses.dataclass
@@ -127,7 +127,7 @@ class Occluder:
             raise ShsasError("ray backend 'embree' needs the embreex package (pip install embreex)")
         self.backend = backend
         self.mesh = mesh
-        self.threads = max(1, threads or os.cpu_count() or 1)
+        self.threads = max(1, threads or owned_cpus())
         self._pool: ThreadPoolExecutor | None = None
         if backend == "embree":
             from trimesh.ray.ray_pyembree import RayMeshIntersector

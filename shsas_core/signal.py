@@ -21,6 +21,7 @@ import numpy as np
 import scipy.fft as sfft
 
 from .errors import ShsasError
+from .progress import StopFn, check_stop
 from .survey import SceneBox, Survey, sample_times
 
 
@@ -103,6 +104,15 @@ def passband(signals: np.ndarray, t0: np.ndarray, fs: float, carrier_hz: float) 
 #: Rows per block in the whole-survey transforms below: bounds the float64/complex128
 #: temporaries (a 43,200-ping survey would otherwise need several GB of them at once).
 ROW_BLOCK = 1024
+#: Samples per block at most (fewer rows for long pings): a block's FFTs take a fraction of a
+#: second, so a cancel or a time limit polled between blocks lands within about a second even
+#: for a survey of a few pings of millions of samples.
+BLOCK_SAMPLES = 1 << 22
+
+
+def row_block(samples_per_row: int) -> int:
+    """Rows per block for rows of ``samples_per_row`` samples (1 to ``ROW_BLOCK``)."""
+    return max(1, min(ROW_BLOCK, BLOCK_SAMPLES // max(samples_per_row, 1)))
 
 
 def _shift(signals: np.ndarray, t0: np.ndarray, fs: float, freq: float) -> np.ndarray:
@@ -115,10 +125,10 @@ def _shift(signals: np.ndarray, t0: np.ndarray, fs: float, freq: float) -> np.nd
     return out
 
 
-def analytic_samples(survey: Survey) -> np.ndarray:
+def analytic_samples(survey: Survey, should_stop: StopFn | None = None) -> np.ndarray:
     """The survey's samples as complex: real -> analytic passband; analytic/baseband unchanged.
 
-    Returns (N, T) complex64.
+    ``should_stop`` is polled between blocks of rows (:func:`row_block`). Returns (N, T) complex64.
     """
     if survey.samples is None:
         raise ShsasError("survey samples were not loaded (read the survey with load_samples=True)")
@@ -127,8 +137,10 @@ def analytic_samples(survey: Survey) -> np.ndarray:
         if np.iscomplexobj(s):
             raise ShsasError("pings/samples: complex samples but meta.signal_kind is 'real'")
         out = np.empty(s.shape, np.complex64)
-        for a in range(0, s.shape[0], ROW_BLOCK):  # bounded temporaries
-            out[a : a + ROW_BLOCK] = analytic_signal(s[a : a + ROW_BLOCK].astype(np.float32))
+        step = row_block(s.shape[-1])
+        for a in range(0, s.shape[0], step):  # bounded temporaries, and a cancel between blocks
+            check_stop(should_stop)
+            out[a : a + step] = analytic_signal(s[a : a + step].astype(np.float32))
         return out
     if not np.iscomplexobj(s):
         raise ShsasError(f"pings/samples: real samples but meta.signal_kind is '{survey.meta.signal_kind}'")

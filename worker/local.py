@@ -32,7 +32,7 @@ ORPHAN_GRACE_S = 5.0
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
-def _die_with_parent(parent_pid: int) -> None:
+def die_with_parent(parent_pid: int) -> None:
     """Ask Linux to send SIGTERM to this process when its parent dies (best effort)."""
     if not sys.platform.startswith("linux"):
         return
@@ -59,6 +59,8 @@ def _watch_parent(parent_pid: int) -> None:
 
 def run_local_worker(parent_pid: int | None = None) -> None:
     """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
+    from shsas_core.threads import size_thread_pools
+
     from .logs import configure_logging
     from .priority import lower_priority
     from .runner import execute_job, request_shutdown, worker_id
@@ -68,6 +70,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
     settings = get_settings()
     configure_logging(settings.log_format, "info")
     lower_priority(settings.worker_nice)  # before torch starts its threads
+    size_thread_pools()  # to the CPUs this child owns, not the machine's
     stopping = threading.Event()
 
     def on_term(*_) -> None:
@@ -79,7 +82,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
     signal.signal(signal.SIGTERM, on_term)
     signal.signal(signal.SIGINT, on_term)
     if parent_pid is not None:
-        _die_with_parent(parent_pid)
+        die_with_parent(parent_pid)
         threading.Thread(target=_watch_parent, args=(parent_pid,), name="shsas-parent-watch", daemon=True).start()
     store = JobStore.from_settings(settings)
     owner = worker_id()

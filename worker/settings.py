@@ -65,6 +65,14 @@ class Settings(BaseSettings):
         512**3, ge=8**3, description="cost cap of a spec: grid^3 (the explicit grid, or the automatic one "
         "from the survey's scene box); a larger spec gets 422")
 
+    max_cpu_job_s: float | None = Field(
+        None, gt=0, description="a job for the CPU queue whose estimated run time on a CPU "
+        "(shsas_core/cost.py) is over this gets 422 at submission; unset: SHSAS_JOB_SOFT_TIME_LIMIT_S, "
+        "past which the job would be stopped anyway")
+    allow_default_spec: bool = Field(
+        False, description="accept a submission without a `spec` field as the default spec; "
+        "unset, a missing spec is 422 (a forgotten or misnamed field never runs a full default job)")
+
     # ---- lifecycle: retention and sweeping (worker/sweeper.py) ----------------------------------
     retention_days: float = Field(
         30.0, ge=0, description="finished jobs (succeeded, failed, cancelled) older than this are deleted "
@@ -81,6 +89,22 @@ class Settings(BaseSettings):
     worker_nice: int = Field(
         10, ge=0, le=19, description="scheduling niceness the workers add to themselves, so the API "
         "keeps the CPU it needs while a job trains")
+
+    # ---- HTTP connections (service/http_guard.py; docs/service.md, "Connections") ---------------
+    api_workers: int = Field(
+        1, ge=1, le=64, description="API processes `shsas serve` runs (uvicorn workers sharing the port); "
+        "the connection limits below apply to each")
+    http_header_timeout_s: float = Field(
+        10.0, gt=0, description="a request's line and headers must arrive within this many seconds of "
+        "its first byte (or of the connection's opening), else 408 and the connection closes")
+    http_keepalive_s: int = Field(5, ge=1, description="an idle keep-alive connection is closed after this")
+    http_max_header_bytes: int = Field(
+        64 * 1024, ge=8 * 1024, description="request line plus headers larger than this get 431")
+    http_max_connections: int = Field(
+        1000, ge=16, description="open connections one API process serves; past it a new one gets 503")
+    http_max_connections_per_client: int = Field(
+        200, ge=1, description="open connections from one client address to one API process; past it "
+        "503 (behind a proxy every client has the proxy's address: raise it there)")
 
     @model_validator(mode="after")
     def _limits(self) -> Settings:
@@ -100,6 +124,11 @@ class Settings(BaseSettings):
                 url = "postgresql+psycopg://" + url.split("://", 1)[1]
             return url
         return f"sqlite:///{(self.data_dir / 'shsas.db').resolve()}"
+
+    @property
+    def cpu_job_limit_s(self) -> float:
+        """The effective cap of a CPU-queue job's estimated run time."""
+        return self.max_cpu_job_s if self.max_cpu_job_s is not None else self.job_soft_time_limit_s
 
     @property
     def embedded(self) -> bool:

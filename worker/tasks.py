@@ -27,14 +27,18 @@ def _get_store() -> JobStore:
 
 @worker_process_init.connect
 def _pool_child_start(**_) -> None:
-    """In each pool child, before it runs a task: the service log format and a lower CPU
-    priority than the API (the child is where the job's threads run)."""
+    """In each pool child, before it runs a task: the service log format, a lower CPU priority
+    than the API and thread pools sized to the CPUs it owns (the child is where the job's
+    threads run)."""
+    from shsas_core.threads import size_thread_pools
+
     from .logs import configure_logging
     from .priority import lower_priority
 
     settings = get_settings()
     configure_logging(settings.log_format, logging.getLogger("shsas").level or "info")
     lower_priority(settings.worker_nice)
+    size_thread_pools()
 
 
 @app.task(name=TASK_NAME, acks_late=True, reject_on_worker_lost=True, ignore_result=True)

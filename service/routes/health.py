@@ -7,7 +7,7 @@ from fastapi.responses import JSONResponse, Response
 
 from worker.dispatch import broker_ping
 
-from ..deps import SettingsDep, StoreDep
+from ..deps import RETRY_AFTER_S, SettingsDep, StoreDep
 from ..models import Health
 
 router = APIRouter()
@@ -28,7 +28,9 @@ def head_healthz() -> Response:
 @router.head("/readyz", responses={503: {"description": "not ready"}})
 def head_readyz(store: StoreDep, settings: SettingsDep) -> Response:
     """Readiness, headers only: 200 or 503."""
-    return Response(status_code=readyz(store, settings).status_code)
+    ready = readyz(store, settings)
+    return Response(status_code=ready.status_code, headers={
+        k: v for k, v in ready.headers.items() if k == "retry-after"})
 
 
 @router.get("/readyz", response_model=Health, responses={503: {"model": Health}})
@@ -48,5 +50,8 @@ def readyz(store: StoreDep, settings: SettingsDep) -> Response:
             checks["broker"] = "ok"
         except Exception as exc:
             ok, checks["broker"] = False, f"error: {type(exc).__name__}"
-    body = Health(status="ok" if ok else "unavailable", checks=checks)
-    return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+    down = [{"job_store": "the job store", "broker": "the broker"}[k] for k, v in checks.items() if v.startswith("error")]
+    body = Health(status="ok" if ok else "unavailable", checks=checks,
+                  detail=None if ok else f"{' and '.join(down)} unavailable; retry later")
+    return JSONResponse(body.model_dump(exclude_none=True), status_code=200 if ok else 503,
+                        headers=None if ok else {"Retry-After": str(RETRY_AFTER_S)})

@@ -8,6 +8,7 @@ import logging
 import shutil
 import time
 import uuid
+from contextlib import AsyncExitStack
 from typing import Annotated
 
 import anyio
@@ -26,7 +27,7 @@ from ..deps import ERRORS, Owner, SettingsDep, StoreDep, json_response
 from ..job_names import job_label
 from ..lookup import job_of
 from ..models import ErrorOut, JobOut, JobPage
-from ..quotas import box_of, check_active_jobs, check_spec_cost
+from ..quotas import box_of, check_cpu_time, check_spec_cost, hold_slot
 from ..status import live_status
 from ..sweeper import upload_dir
 from ..uploads import UploadError, receive_upload
@@ -70,6 +71,12 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
 
     Refused with 429 past the key's quota of queued and running jobs, and with 422 when the
     spec is over the cost cap (docs/service.md, "Limits")."""
+    async with AsyncExitStack() as held:  # the key's quota slot, reserved until the job row exists
+        return await _submit(request, who, store, settings, idempotency_key, held)
+
+
+async def _submit(request: Request, who: str, store: StoreDep, settings: SettingsDep,
+                  idempotency_key: str | None, held: AsyncExitStack) -> Response:
     with upload_dir(settings.data_dir / "uploads") as tmp_dir:
         # "label" (optional): the operator's name for the job, shown in lists and searched
         up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes,
@@ -81,12 +88,18 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
             raise UploadError(422, f"survey '{up.display_name}': the uploaded file is empty "
                                    "(fix: check the path given to the upload)")
         label = job_label(up.fields.get("label"))
+        if "spec" not in up.fields and not settings.allow_default_spec:
+            raise UploadError(422, "spec: missing form field 'spec' (fix: send the ReconstructionSpec as JSON "
+                                   "in the multipart field 'spec', e.g. -F 'spec={\"methods\":[\"backprojection\"]}'; "
+                                   "-F 'spec={}' runs every default; the operator can accept a missing spec "
+                                   "with SHSAS_ALLOW_DEFAULT_SPEC=1)")
         spec_text = up.fields.get("spec", "").strip() or "{}"
         try:
             spec = ReconstructionSpec.model_validate_json(spec_text)
         except pydantic.ValidationError as exc:
             raise UploadError(422, spec_error(exc)) from None
         check_spec_cost(spec, settings)
+        check_cpu_time(spec, settings)
         spec_json = spec.model_dump(mode="json")
         request_digest = hashlib.sha256(
             (json.dumps(spec_json, sort_keys=True) + up.sha256).encode()).hexdigest()
@@ -97,12 +110,13 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
                     raise UploadError(409, f"Idempotency-Key already used for job {prior.id} "
                                            "with a different survey or spec")
                 return _accepted(prior, request)
-        check_active_jobs(await to_thread.run_sync(store.count_active, who), settings)
+        await hold_slot(held, store, who, settings)
         upload_path = up.path
         checked = await to_thread.run_sync(lambda: validate_in_child(
             upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
             display_name=up.display_name, spec=spec_json, worker_memory_bytes=settings.worker_memory_bytes))
         check_spec_cost(spec, settings, box_of(checked["summary"]))  # the automatic grid, now known
+        check_cpu_time(spec, settings, checked["summary"])
         job_id = uuid.uuid4().hex
         in_dir, _ = job_paths(settings, job_id)
         in_dir.mkdir(parents=True)
@@ -176,6 +190,14 @@ async def get_job(job_id: str, who: Owner, store: StoreDep, settings: SettingsDe
     # job adds one count; the queue's measured rate is cached for a few seconds).
     job = job_of(store, job_id, who)
     return json_response(JobOut.from_job(job, live=live_status(store, settings, job)))
+
+
+@router.head("/reconstructions/{job_id}", responses=ERRORS)
+async def head_job(job_id: str, who: Owner, store: StoreDep, settings: SettingsDep) -> Response:
+    """The headers ``GET /reconstructions/{id}`` would send (status, length, type), no body."""
+    full = await get_job(job_id, who, store, settings)
+    return Response(status_code=full.status_code, media_type=full.media_type,
+                    headers={"content-length": str(len(full.body))})
 
 
 @router.post("/reconstructions/{job_id}/cancel", response_model=JobOut, status_code=202, responses=ERRORS)

@@ -228,3 +228,24 @@ def test_point_spread_is_the_deconvolved_echo_of_a_point(kind):
     assert got.shape == (2 * h + 1,) and got[h] == 1.0
     np.testing.assert_allclose(got, ref, atol=3e-3)
     assert point_spread(s, DeconvConfig(method="none")) is None
+
+
+def test_deconvolution_of_long_pings_polls_inside_the_step() -> None:
+    """Wiener deconvolution of 12 pings of a million samples: the analytic signal and the filter
+    each poll between blocks of four rows, so a cancel lands inside the step (it used to be
+    polled only before and after each 1024 pings)."""
+    from shsas_core.deconv import deconvolve
+    from tests.conftest import make_survey
+
+    survey = make_survey(n=12, t=1_000_000)
+    polls = []
+
+    def stop_after_one_filter_block() -> bool:
+        # polls: 3 analytic blocks, 1 after the analytic signal, 1 per 1024 pings, then one
+        # per filter block: the 7th comes after the first of three filter blocks
+        polls.append(1)
+        return len(polls) >= 7
+
+    with pytest.raises(Cancelled):
+        deconvolve(survey, should_stop=stop_after_one_filter_block)
+    assert len(polls) == 7

@@ -152,3 +152,36 @@ def test_analytic_samples_checks_kind():
     s.samples = None
     with pytest.raises(ShsasError, match="not loaded"):
         analytic_samples(s)
+
+
+def _polls_until(n: int):
+    """A should_stop that says stop at its ``n``-th call, and counts its calls."""
+    calls = []
+
+    def should_stop() -> bool:
+        calls.append(1)
+        return len(calls) >= n
+
+    return should_stop, calls
+
+
+def test_analytic_samples_of_long_pings_poll_between_blocks_and_match_scipy() -> None:
+    """Twelve pings of a million samples (the longest a survey may have): four pings per block
+    (not one block of all of them), a cancel between blocks, and the blocked result equal to
+    scipy.signal.hilbert row by row."""
+    from shsas_core.errors import Cancelled
+    from shsas_core.signal import BLOCK_SAMPLES, analytic_samples, row_block
+    from tests.conftest import make_survey
+
+    t = 1_000_000
+    assert row_block(t) == BLOCK_SAMPLES // t == 4 and row_block(512) == 1024
+    survey = make_survey(n=12, t=t)
+    stop, calls = _polls_until(10**9)
+    out = analytic_samples(survey, stop)
+    assert len(calls) == 3
+    np.testing.assert_allclose(out[2], scipy.signal.hilbert(survey.samples[2].astype(np.float64)),
+                               atol=2e-5 * float(np.abs(out[2]).max()))
+    stop, calls = _polls_until(2)
+    with pytest.raises(Cancelled):
+        analytic_samples(survey, stop)
+    assert len(calls) == 2  # stopped after one of three blocks

@@ -151,10 +151,12 @@ SHSAS = [sys.executable, "-m", "shsas_core.cli"]
 
 
 def start_server(tmp: Path, env: dict[str, str], name: str = "api", log_level: str = "warning",
-                 timeout: float = 180) -> tuple[Proc, str]:
+                 timeout: float = 180, args: tuple[str, ...] = (), wrap: tuple[str, ...] = ()) -> tuple[Proc, str]:
+    """``shsas serve`` on a free port (``args``: more options; ``wrap``: a command it runs under,
+    e.g. ``prlimit --nofile=...``); returns the process and its base URL once /healthz answers."""
     port = free_port()
-    proc = Proc([*SHSAS, "serve", "--host", "127.0.0.1", "--port", str(port), "--log-level", log_level],
-                env, tmp / f"{name}.log")
+    proc = Proc([*wrap, *SHSAS, "serve", "--host", "127.0.0.1", "--port", str(port), "--log-level", log_level,
+                 *args], env, tmp / f"{name}.log")
     base = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + timeout  # a niced start on two loaded cores can take a minute
     while time.monotonic() < deadline:

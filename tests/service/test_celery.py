@@ -132,6 +132,7 @@ def test_broker_down_answers_503_and_fails_nothing_silently(tmp_path, survey_fil
             assert ready.status_code == 503 and ready.json()["checks"]["broker"].startswith("error")
             r = submit(c, survey_file, QUICK_SPEC, **{"Idempotency-Key": "k"})
             assert r.status_code == 503 and "broker is unreachable" in r.json()["detail"]
+            assert ready.headers["retry-after"].isdigit() and r.headers["retry-after"].isdigit()
             # Nothing is left queued forever: the job row says what happened.
             jobs = c.get("/reconstructions").json()["items"]
             assert [j["status"] for j in jobs] == ["failed"] and "broker" in jobs[0]["error"]

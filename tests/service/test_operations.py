@@ -172,6 +172,48 @@ def test_head_on_artifacts_and_health(client, finished) -> None:
     assert client.head(f"/reconstructions/{finished['id']}/artifacts/nope.ply").status_code == 404
 
 
+def test_missing_spec_cpu_cap_and_archive_errors_name_no_server_folder(client, survey_file, tmp_path) -> None:
+    """A missing spec is 422 (not the full default job); a CPU job estimated over the time limit
+    is 422 with the estimate; an archive's error names no temporary folder of the server."""
+    import zipfile
+
+    before = len(client.get("/reconstructions", params={"limit": 100}).json()["items"])
+    r = submit(client, survey_file, None)
+    assert r.status_code == 422 and "spec: missing form field 'spec'" in r.json()["detail"]
+    r = submit(client, survey_file, {"methods": ["reed"], "iters": 50_000, "num_rays": 4800, "num_bins": 200,
+                                     "grid": 32, "device": "cpu"})
+    assert r.status_code == 422 and "on a CPU" in r.json()["detail"] and " h " in r.json()["detail"]
+    archive = tmp_path / "scan.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        z.writestr("notes.txt", "not a scan")
+    r = submit(client, archive, QUICK_SPEC)
+    assert r.status_code == 422 and "scan.zip" in r.json()["detail"], r.text
+    assert "shsas-" not in r.json()["detail"] and "/tmp" not in r.json()["detail"], r.text
+    assert len(client.get("/reconstructions", params={"limit": 100}).json()["items"]) == before
+
+
+@pytest.mark.slow
+def test_allow_default_spec_accepts_a_missing_spec(tmp_path, survey_file) -> None:
+    env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), "SHSAS_ALLOW_DEFAULT_SPEC": "1"}
+    proc, base = start_server(tmp_path, env, args=("--no-worker",))
+    try:
+        with httpx.Client(base_url=base, timeout=60) as c:
+            r = submit(c, survey_file, None)
+            assert r.status_code == 202, r.text
+            assert r.json()["spec"] == ReconstructionSpec().model_dump(mode="json")
+    finally:
+        proc.stop()
+
+
+def test_head_on_a_job_answers_like_get_without_a_body(client, finished) -> None:
+    url = f"/reconstructions/{finished['id']}"
+    got, head = client.get(url), client.head(url)
+    assert head.status_code == 200 and head.content == b""
+    assert head.headers["content-type"] == got.headers["content-type"] == "application/json"
+    assert int(head.headers["content-length"]) == len(got.content)
+    assert client.head("/reconstructions/" + "0" * 32).status_code == 404
+
+
 def test_delete_removes_a_running_job_and_its_files(client, server, survey_file) -> None:
     job = submit(client, survey_file, LONG_SPEC).json()
     wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] > 0, 120, "job to run")
@@ -232,7 +274,9 @@ def _keys_create(env: dict[str, str], name: str) -> str:
 def test_logs_say_who_did_what_and_why_never_the_secret(tmp_path, survey_file) -> None:
     env = {"SHSAS_DATA_DIR": str(tmp_path / "data"), **FAST_TIMINGS,
            # every job fails in the worker past 3 s: a failure whose reason the worker must log
-           "SHSAS_JOB_SOFT_TIME_LIMIT_S": "3", "SHSAS_JOB_HARD_TIME_LIMIT_S": "600"}
+           "SHSAS_JOB_SOFT_TIME_LIMIT_S": "3", "SHSAS_JOB_HARD_TIME_LIMIT_S": "600",
+           # the CPU cap would otherwise follow the 3 s limit and refuse the job at submission
+           "SHSAS_MAX_CPU_JOB_S": "86400"}
     proc, base = start_server(tmp_path, env, log_level="info")
     try:
         key_a, key_b = _keys_create(env, "alice"), _keys_create(env, "bob")

@@ -192,6 +192,35 @@ def test_count_active_counts_queued_and_running_of_one_owner(store: JobStore) ->
     assert store.count_active("alice") == 0 and store.count_active("bob") == 1
 
 
+def test_reserve_slot_is_atomic_counts_jobs_and_expires(store: JobStore) -> None:
+    """Sixteen threads reserve at once against a limit of 3 with one queued job: exactly two win;
+    a released slot is free again; a reservation older than the time to live is ignored."""
+    new_job(store, "alice")
+    won: list[str] = []
+    barrier = threading.Barrier(16)
+
+    def reserve() -> None:
+        barrier.wait()
+        rid, _ = store.reserve_slot("alice", 3, stale_after_s=600)
+        if rid is not None:
+            won.append(rid)
+
+    threads = [threading.Thread(target=reserve) for _ in range(16)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(won) == 2
+    assert store.reserve_slot("alice", 3, stale_after_s=600) == (None, 3)
+    assert store.reserve_slot("bob", 1, stale_after_s=600)[0] is not None  # per owner
+    store.release_slot(won[0])
+    rid, in_use = store.reserve_slot("alice", 3, stale_after_s=600)
+    assert rid is not None and in_use == 2
+    time.sleep(0.05)
+    rid, in_use = store.reserve_slot("alice", 3, stale_after_s=0.01)  # the others went stale
+    assert rid is not None and in_use == 1
+
+
 def test_queue_position_counts_every_owner_ahead_in_the_same_queue(store: JobStore) -> None:
     first, _ = new_job(store, "alice")
     new_job(store, "carol", queue="gpu")  # another queue: not ahead

@@ -3,6 +3,7 @@ queue statistics."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 import uuid
@@ -16,6 +17,7 @@ from .records import (
     IdempotencyConflict,
     Job,
     jobs,
+    reservations,
 )
 
 
@@ -105,6 +107,39 @@ class JobQueries(StoreBase):
         with self.engine.connect() as conn:
             return int(conn.execute(sa.select(sa.func.count()).select_from(jobs).where(
                 jobs.c.owner == owner, jobs.c.status.in_(("queued", "running")))).scalar() or 0)
+
+    def reserve_slot(self, owner: str, limit: int, stale_after_s: float) -> tuple[str | None, int]:
+        """Take one of ``owner``'s ``limit`` slots for a submission in flight, atomically.
+
+        Returns (reservation id, slots in use before it); the id is None when all ``limit`` are
+        taken by queued or running jobs and other submissions in flight. Release the slot with
+        :meth:`release_slot` once the job row exists (or the submission failed). Reservations
+        older than ``stale_after_s`` (their API process died) are removed first.
+        """
+        now = time.time()
+        with self._tx() as conn:
+            if conn.dialect.name == "postgresql":
+                # One submission of a key at a time between the count and the insert.
+                lock = int.from_bytes(hashlib.sha256(owner.encode()).digest()[:8], "big", signed=True)
+                conn.execute(sa.text("SELECT pg_advisory_xact_lock(:k)"), {"k": lock})
+            # On SQLite this DELETE, the transaction's first statement, takes the database's
+            # write lock: the count below cannot change before the insert commits.
+            conn.execute(reservations.delete().where(reservations.c.created_at < now - stale_after_s))
+            jobs_in_use = conn.execute(sa.select(sa.func.count()).select_from(jobs).where(
+                jobs.c.owner == owner, jobs.c.status.in_(("queued", "running")))).scalar() or 0
+            held = conn.execute(sa.select(sa.func.count()).select_from(reservations).where(
+                reservations.c.owner == owner)).scalar() or 0
+            in_use = int(jobs_in_use) + int(held)
+            if in_use >= limit:
+                return None, in_use
+            rid = uuid.uuid4().hex
+            conn.execute(reservations.insert().values(id=rid, owner=owner, created_at=now))
+            return rid, in_use
+
+    def release_slot(self, reservation_id: str) -> None:
+        """Give back a slot taken by :meth:`reserve_slot` (its job row now counts instead)."""
+        with self._tx() as conn:
+            conn.execute(reservations.delete().where(reservations.c.id == reservation_id))
 
     def queue_position(self, job: Job) -> int:
         """Queued jobs of any owner ahead of ``job`` in its queue (0: it is next)."""

@@ -56,6 +56,18 @@ jobs = sa.Table(
     sa.Index("ix_shsas_jobs_status_heartbeat", "status", "heartbeat_at"),
 )
 
+#: Submissions between the quota check and their job row (upload validated, job not yet
+#: inserted): counted with the key's queued and running jobs, so concurrent submissions cannot
+#: all pass a count read before the seconds-long validation. A row whose API process died is
+#: ignored and removed once it is older than the validation could take.
+reservations = sa.Table(
+    "shsas_reservations", metadata,
+    sa.Column("id", sa.String(32), primary_key=True),
+    sa.Column("owner", sa.String(64), nullable=False),
+    sa.Column("created_at", sa.Double, nullable=False),
+    sa.Index("ix_shsas_reservations_owner", "owner"),
+)
+
 api_keys = sa.Table(
     "shsas_api_keys", metadata,
     sa.Column("id", sa.String(32), primary_key=True),
@@ -148,6 +160,10 @@ class IdempotencyConflict(Exception):
         self.job = job
 
 
+#: Seconds to wait for a PostgreSQL connection (a new one, or a free one of the pool).
+STORE_CONNECT_TIMEOUT_S = 5
+
+
 def make_engine(url: str, schema: str | None = None) -> Engine:
     """An engine for ``url``; SQLite gets WAL and a busy timeout so several processes can share it."""
     if url.startswith("sqlite"):
@@ -163,11 +179,16 @@ def make_engine(url: str, schema: str | None = None) -> Engine:
             cur.close()
 
         return engine
-    kwargs: dict[str, Any] = {"pool_pre_ping": True, "pool_size": 10, "max_overflow": 20}
+    # A database host that drops packets would hold a request for the kernel's TCP timeout
+    # (minutes); with a connect timeout and a pool timeout a request fails fast and the API
+    # answers 503 (service/app.py) while the database is away.
+    connect_args: dict[str, Any] = {"connect_timeout": STORE_CONNECT_TIMEOUT_S}
+    kwargs: dict[str, Any] = {"pool_pre_ping": True, "pool_size": 10, "max_overflow": 20,
+                              "pool_timeout": STORE_CONNECT_TIMEOUT_S, "connect_args": connect_args}
     if schema:
         if not schema.replace("_", "").isalnum():
             raise ValueError(f"database schema name must be alphanumeric/underscore, got {schema!r}")
-        kwargs["connect_args"] = {"options": f"-csearch_path={schema}"}
+        connect_args["options"] = f"-csearch_path={schema}"
     engine = sa.create_engine(url, **kwargs)
     if schema:
         with engine.begin() as conn:
