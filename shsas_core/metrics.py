@@ -63,6 +63,9 @@ from scipy.spatial import cKDTree
 from .errors import ShsasError
 from .survey import SceneBox
 
+#: Changes whenever a metric's definition or key changes: stored scores of another version are
+#: recomputed (the pipeline's extraction cache key holds it).
+METRICS_VERSION = 2
 GT_SAMPLES = 20_000
 SEED = 0
 VOXEL = 0.005  # m
