@@ -42,6 +42,12 @@ def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     ev = json.loads(capsys.readouterr().out)
     for k, v in rep["methods"][0]["metrics"].items():
         assert ev["backprojection"][k] == pytest.approx(v, rel=1e-9, abs=1e-12), k
+    # the table form prints the new columns and the same mesh warnings as the run
+    assert main(["evaluate", str(out), "--gt", str(path)]) == 0
+    cap = capsys.readouterr()
+    assert "surface F1" in cap.out and "solid F1" in cap.out and "pieces" in cap.out
+    assert [ln for ln in cap.err.splitlines() if ln.startswith("warning:")] == [
+        f"warning: {w.line('backprojection')}" for w in mesh_warnings(rep["methods"][0]["metrics"])]
     # a single mesh file against a GT mesh file with an explicit box
     gt_path = tmp_path / "gt.ply"
     trimesh.Trimesh(survey.gt_vertices, survey.gt_faces).export(gt_path)
