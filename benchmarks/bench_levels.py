@@ -4,8 +4,8 @@ level rule beat the product's Otsu rule?
 Runs nothing new. For every ``<method>_volume.npy`` a ``bench_fidelity.py`` run left under
 ``--out/<profile>/<regime>/<scene>/seed<S>/`` it picks τ by each rule below, thresholds the
 normalised magnitude exactly as ``shsas_core.extract.point_cloud`` does, and scores the cloud
-against the cell's ground truth (its cached survey, design §5). Prints point-cloud F1,
-Chamfer-L2 and F@5mm per volume and rule, then the means over scenes per method, side by side.
+against the cell's ground truth (its cached survey, design §5). Prints point-cloud surface F1,
+the paper code's solid F1, Chamfer-L2 and F@5mm per volume and rule, then the means over scenes per method, side by side.
 
 Rules (τ on the range-normalised magnitude ``n``, ``extract.normalize``):
 
@@ -20,8 +20,8 @@ The rules other than ``otsu`` and ``paper`` are candidates measured here, not pr
 
 With ``--hidden-band MM,...`` it also scores the Otsu cloud plus the voxels that lie within that
 depth (mm) of it and that no sonar position can see (:func:`hidden_voxels`): the truncation band a
-TSDF fusion marks as inside behind an observed surface. The occupancy F1 counts the solid object
-(design §5), which a surface-only cloud cannot reach on large convex scenes; this asks whether
+TSDF fusion marks as inside behind an observed surface. The solid F1 counts the solid object
+(the paper code's convention), which a surface-only cloud cannot reach on large convex scenes; this asks whether
 adding the unobservable space behind the surface separates the methods. A candidate, not a
 product option.
 
@@ -151,13 +151,17 @@ def with_hidden_band(mask: np.ndarray, grid: Grid, views: np.ndarray, depth_m: f
     return mask | hidden_voxels(mask, grid, views, near & ~mask)
 
 
+#: The scores kept per rule: the primary surface F1, the paper code's solid F1, Chamfer-L2, F@5mm.
+SCORES = ("surface_f1", "solid_f1", "chamfer_l2", "fscore")
+
+
 def rescore(volume: Volume, gt: GroundTruth) -> dict[str, dict[str, float]]:
     """Per rule: τ (clipped into (0, 1) as ``point_cloud`` requires) and the cloud's scores."""
     out = {}
     for name, rule in RULES.items():
         tau = float(np.clip(rule(volume), 1e-3, 1 - 1e-3))
         s = score_points(point_cloud(volume, tau).points, gt)
-        out[name] = {"tau": tau, "f1": s["f1"], "chamfer_l2": s["chamfer_l2"], "fscore": s["fscore"]}
+        out[name] = {"tau": tau, **{k: s[k] for k in SCORES}}
     return out
 
 
@@ -171,8 +175,7 @@ def rescore_hidden(volume: Volume, gt: GroundTruth, views: np.ndarray,
     for d in depths_mm:
         full = with_hidden_band(mask, volume.grid, views, d / 1000.0)
         s = score_points(lo + (np.argwhere(full) + 0.5) * h, gt)
-        out[f"otsu+hidden{d:g}mm"] = {"tau": tau, "f1": s["f1"], "chamfer_l2": s["chamfer_l2"],
-                                      "fscore": s["fscore"]}
+        out[f"otsu+hidden{d:g}mm"] = {"tau": tau, **{k: s[k] for k in SCORES}}
     return out
 
 
@@ -221,21 +224,23 @@ def main(argv: list[str] | None = None) -> int:
                 scores |= rescore_hidden(volume, gt, survey.tx[::VIEW_STRIDE], depths)
             for rule, s in scores.items():
                 rows[(cell, method, rule)] = s
-                print(f"{cell:24s} {method:14s} {rule:9s} τ {s['tau']:.3f}  F1 {s['f1']:.3f}  "
-                      f"Chamfer {s['chamfer_l2']:.2e}  F@5mm {s['fscore']:.3f}", flush=True)
+                print(f"{cell:24s} {method:14s} {rule:9s} τ {s['tau']:.3f}  surface F1 {s['surface_f1']:.3f}  "
+                      f"solid F1 {s['solid_f1']:.3f}  Chamfer {s['chamfer_l2']:.2e}  F@5mm {s['fscore']:.3f}",
+                      flush=True)
     if not rows:
         print(f"no stored volumes under {Path(args.out) / args.profile}")
         return 1
     methods = sorted({m for _, m, _ in rows})
     cells = sorted({c for c, _, _ in rows})
-    print(f"\nmean over {len(cells)} cell(s): pc F1 / Chamfer-L2 m² / F@5mm")
+    print(f"\nmean over {len(cells)} cell(s): pc surface F1 / solid F1 (paper code) / Chamfer-L2 m² / F@5mm")
     print("| rule | " + " | ".join(fid.LABEL.get(m, m) for m in methods) + " |")
     print("|---|" + "---|" * len(methods))
     for rule in dict.fromkeys(r for _, _, r in rows):
         out = []
         for m in methods:
             sel = [rows[(c, m, rule)] for c in cells if (c, m, rule) in rows]
-            out.append(" / ".join([f"{np.mean([s['f1'] for s in sel]):.3f}",
+            out.append(" / ".join([f"{np.mean([s['surface_f1'] for s in sel]):.3f}",
+                                   f"{np.mean([s['solid_f1'] for s in sel]):.3f}",
                                    f"{np.mean([s['chamfer_l2'] for s in sel]):.2e}",
                                    f"{np.mean([s['fscore'] for s in sel]):.3f}"]))
         print(f"| {rule} | " + " | ".join(out) + " |")

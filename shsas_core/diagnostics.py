@@ -13,6 +13,11 @@ cheap enough to detect, that no result should leave the pipeline without being c
   iterations / mean over the first; limit 0.9, lowered when the per-iteration noise is too large
   to show a fall of 10 % (:func:`loss_limit`).
 
+* ``mesh_pieces``, ``mesh_area_ratio``, ``mesh_normal_consistency`` — the extracted mesh is not
+  one clean surface: it fails a bound of :class:`shsas_core.metrics.MeshChecks` on the mesh
+  quality the metrics measured (pieces also without ground truth). Checked only when the volume
+  passed its own checks: the mesh of a collapsed or fog-filled volume says nothing more.
+
 Each finding is a :class:`ResultWarning` carrying its measure and the limit it crossed, so a
 reader can judge how far off the result is. The pipeline stores them in ``report.json``
 (``methods[].warnings``) and the HTML report, the CLI prints them, and the service's job status
@@ -22,7 +27,7 @@ carries them; a warning never fails the job (the job ran; its result is suspect)
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Literal
 
 import numpy as np
@@ -30,7 +35,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from .volume import Volume
 
-WarningCode = Literal["collapsed", "box_filling", "loss_not_falling"]
+WarningCode = Literal["collapsed", "box_filling", "loss_not_falling", "mesh_pieces", "mesh_area_ratio",
+                      "mesh_normal_consistency"]
 
 #: ``collapsed`` below this relative spread ``(max - min) / max`` of |values|. Measured on the
 #: built-in sphere (docs/usage.md, Warnings): backprojection images span orders of magnitude
@@ -69,7 +75,7 @@ class ResultWarning(BaseModel):
 
     ``measure`` and ``limit`` share a unit (see the codes in the module doc): the result was
     flagged because ``measure`` fell below (``collapsed``) or reached (``box_filling``,
-    ``loss_not_falling``) ``limit``.
+    ``loss_not_falling``) ``limit``; a mesh check's measure lies outside its bound.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -170,3 +176,18 @@ def fit_warnings(data_loss_history: Sequence[float]) -> list[ResultWarning]:
         code="loss_not_falling", measure=ratio, limit=limit,
         message=f"the fit's data loss did not fall (mean of the last {pct} % of iterations / "
                 f"mean of the first {pct} %): the field did not learn the data")]
+
+
+def mesh_warnings(metrics: Mapping[str, float | None], prefix: str = "mesh_") -> list[ResultWarning]:
+    """Check the mesh quality in a method's metrics (``<prefix>pieces``, ``<prefix>area_ratio``,
+    ``<prefix>normal_consistency``; missing or None keys are not judged) against
+    :data:`shsas_core.metrics.MESH_CHECKS`.
+
+    Returns:
+        One ``mesh_<key>`` warning per failed bound, in that order.
+    """
+    from .metrics import mesh_check_failures
+
+    quality = {k[len(prefix):]: v for k, v in metrics.items() if k.startswith(prefix)}
+    return [ResultWarning(code=f"mesh_{key}", message=message, measure=measure, limit=limit)  # type: ignore[arg-type]
+            for key, message, measure, limit in mesh_check_failures(quality)]

@@ -1,28 +1,49 @@
 """Geometry and signal metrics, the evaluation protocol every figure names (stated below).
 
-Ground truth is a mesh in the survey frame.
+Sonar sees surfaces, never insides, so the protocol scores surfaces. Ground truth is a mesh in
+the survey frame.
 
 - Surface sample: :data:`GT_SAMPLES` = 20,000 area-weighted points with seed :data:`SEED`.
-- Chamfer-L2 (the SAS papers' convention): mean squared nearest-neighbour distance pred→GT plus
-  GT→pred, m². Chamfer-L1 (Occupancy Networks): mean of the two unsquared means, m.
-- F-score at τ = 5 mm on points (Tanks and Temples): precision = share of predicted points within
-  τ of the GT sample, recall = share of GT samples within τ of the prediction.
-- Occupancy on 5 mm voxels over the scene box: a GT voxel is occupied when its centre is inside
-  the mesh or within one voxel (5 mm) of its surface; a predicted voxel when it contains at least
-  one predicted point (mesh: its surface sample). IoU, precision, recall, F1 on these sets.
+- **Surface F1 (primary)**, keys ``surface_iou``, ``surface_precision``, ``surface_recall``,
+  ``surface_f1``: 5 mm voxels over the scene box. A voxel belongs to a surface when its centre
+  lies within :data:`SURFACE_BAND` (5 mm) of it, with no fill: for the ground truth, of the mesh
+  surface (exact point-to-triangle distances, :func:`within_distance_of_mesh`); for a point cloud,
+  of one of its points (a KD-tree); for a mesh, of its surface (exact, as for the ground truth).
+  The same band on both sides is what makes a perfectly placed surface score 1: counting only the
+  voxels that hold a predicted point would mark a ~1-voxel-thick layer against a band two voxels
+  thick, and a perfect surface would score 0.72-0.76 (sphere, cube, bunny). A prediction thicker
+  than the surface (a ±5 mm shell of points, a double sheet) widens its band and loses precision.
+- F-score at τ = 5 mm (``fscore``, ``fscore_precision``, ``fscore_recall``) and τ = 2.5 mm
+  (``fscore_2_5mm``, ``fscore_2_5mm_precision``, ``fscore_2_5mm_recall``) on points (Tanks and
+  Temples): precision = share of predicted points within τ of the GT sample, recall = share of GT
+  samples within τ of the prediction.
+- Chamfer-L2 (``chamfer_l2``, the SAS papers' convention): mean squared nearest-neighbour
+  distance pred→GT plus GT→pred, m². Chamfer-L1 (``chamfer_l1``, Occupancy Networks): mean of
+  the two unsquared means, m.
+- Secondary, the paper code's convention: **solid F1** (``solid_iou``, ``solid_precision``,
+  ``solid_recall``, ``solid_f1``): a GT voxel is inside the mesh or within one voxel (5 mm) of
+  its surface; a predicted voxel holds at least one predicted point (mesh: its surface sample).
+  It counts the filled inside of the object, which no sonar sees: a perfect surface scores about
+  0.5 on it.
+- Mesh quality (:func:`mesh_quality`; a mesh only): ``pieces``, the fewest connected components
+  (sharing an edge) that hold :data:`PIECES_AREA_SHARE` (95 %) of the mesh's area (no GT needed);
+  ``area_ratio``, mesh area over GT area; ``normal_consistency``, the mean |n·n_gt| of face
+  normals at nearest points, averaged over both directions (mesh sample → GT sample and back,
+  Occupancy Networks' definition). :class:`MeshChecks` holds the bounds a usable mesh meets.
 
 Meshes are scored as points: their surface is resampled (area-weighted, fixed seed) with
-:data:`GT_SAMPLES` points for the point metrics and densely enough (≥ 4 samples per voxel face
-area) for occupancy, so that every voxel the surface crosses is marked.
+:data:`GT_SAMPLES` points for the point metrics and normals, and densely enough (≥ 4 samples per
+voxel face area) for the solid occupancy, so that every voxel the surface crosses is marked.
 
-"Inside" uses the shell-and-fill rule: the set of voxels within one voxel of the surface is a
-closed shell (two 6-neighbour centres are 5 mm apart, so a path from inside to outside passes a
-centre within 2.5 mm of the surface), and the voxels it encloses (``scipy.ndimage.
-binary_fill_holes``) are the inside. For a watertight mesh this equals ``contains ∪ band``
-(tested against trimesh's ray test); for meshes with holes smaller than ~1 cm, like the Stanford
-bunny's base, it closes them instead of failing.
+"Inside" (solid F1) uses the shell-and-fill rule: the set of voxels within one voxel of the
+surface is a closed shell (two 6-neighbour centres are 5 mm apart, so a path from inside to
+outside passes a centre within 2.5 mm of the surface), and the voxels it encloses (``scipy.
+ndimage.binary_fill_holes``) are the inside. For a watertight mesh this equals ``contains ∪
+band`` (tested against trimesh's ray test); for meshes with holes smaller than ~1 cm, like the
+Stanford bunny's base, it closes them instead of failing. That band is also the surface F1's
+ground truth.
 
-"Within one voxel of the surface" is exact: point-to-triangle distances
+"Within a distance of the surface" is exact: point-to-triangle distances
 (:func:`within_distance_of_mesh`). The search for candidate triangles covers each triangle with
 its own cells no wider than the search radius, so its time and memory follow the mesh's area
 and edge lengths, not its largest triangle (:mod:`shsas_core.metrics_reference` keeps the
@@ -31,6 +52,7 @@ earlier global-radius search as a test oracle and benchmark baseline).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -41,10 +63,18 @@ from scipy.spatial import cKDTree
 from .errors import ShsasError
 from .survey import SceneBox
 
+#: Changes whenever a metric's definition or key changes: stored scores of another version are
+#: recomputed (the pipeline's extraction cache key holds it).
+METRICS_VERSION = 2
 GT_SAMPLES = 20_000
 SEED = 0
 VOXEL = 0.005  # m
 FSCORE_TAU = 0.005  # m
+FSCORE_TAU_FINE = 0.0025  # m, the second F-score distance (keys fscore_2_5mm*)
+#: a voxel belongs to a surface when its centre is this close to it (m): one voxel
+SURFACE_BAND = VOXEL
+#: ``pieces`` counts the largest connected components until they hold this share of the area
+PIECES_AREA_SHARE = 0.95
 MAX_MESH_SAMPLES = 2_000_000
 # ground-truth band search (within_distance_of_mesh): cell side in search radii (1 measured
 # fastest of 0.5-2 on the bunny, armadillo and a sliver cone), the finest cell as a share of the
@@ -63,21 +93,43 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, n: int = GT_SAMPLES,
     Returns:
         (n, 3) float64, m. Empty meshes (no area) give (0, 3).
     """
+    return sample_surface_faces(vertices, faces, n, seed)[0]
+
+
+def sample_surface_faces(vertices: np.ndarray, faces: np.ndarray, n: int = GT_SAMPLES,
+                         seed: int = SEED) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`sample_surface` (the same points for the same arguments) and the face each point
+    lies on.
+
+    Returns:
+        (n, 3) float64 points, m, and (n,) int64 face indices; (0, 3) and (0,) for a mesh
+        without area.
+    """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    empty = (np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
     if len(f) == 0 or n <= 0:
-        return np.zeros((0, 3))
+        return empty
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
     total = float(area.sum())
     if not total > 0:
-        return np.zeros((0, 3))
+        return empty
     rng = np.random.default_rng(seed)
     tri = rng.choice(len(f), size=n, p=area / total)
     r1, r2 = rng.random(n), rng.random(n)
     s = np.sqrt(r1)
     # (1-√r1, √r1(1-r2), √r1 r2) is uniform on the triangle (Osada et al. 2002)
-    return (1 - s)[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + (s * r2)[:, None] * c[tri]
+    pts = (1 - s)[:, None] * a[tri] + (s * (1 - r2))[:, None] * b[tri] + (s * r2)[:, None] * c[tri]
+    return pts, tri.astype(np.int64)
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 3) unit face normals (right-hand rule); zero rows for zero-area faces."""
+    tri = _triangles(vertices, faces)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def nn_distances(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -101,13 +153,20 @@ def chamfer(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     }
 
 
-def fscore(pred: np.ndarray, gt: np.ndarray, tau: float = FSCORE_TAU) -> dict[str, float]:
-    """Tanks-and-Temples precision, recall and F-score at distance ``tau`` (m)."""
+def fscore(pred: np.ndarray, gt: np.ndarray, tau: float = FSCORE_TAU, key: str = "fscore") -> dict[str, float]:
+    """Tanks-and-Temples precision, recall and F-score at distance ``tau`` (m), as ``<key>``,
+    ``<key>_precision`` and ``<key>_recall``."""
     if len(pred) == 0 or len(gt) == 0:
-        return {"fscore_precision": 0.0, "fscore_recall": 0.0, "fscore": 0.0}
+        return {f"{key}_precision": 0.0, f"{key}_recall": 0.0, key: 0.0}
     p = float(np.mean(nn_distances(pred, gt) <= tau))
     r = float(np.mean(nn_distances(gt, pred) <= tau))
-    return {"fscore_precision": p, "fscore_recall": r, "fscore": _f1(p, r)}
+    return {f"{key}_precision": p, f"{key}_recall": r, key: _f1(p, r)}
+
+
+def point_fscores(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
+    """F-scores at :data:`FSCORE_TAU` (keys ``fscore*``) and :data:`FSCORE_TAU_FINE` (keys
+    ``fscore_2_5mm*``)."""
+    return {**fscore(pred, gt, FSCORE_TAU), **fscore(pred, gt, FSCORE_TAU_FINE, key="fscore_2_5mm")}
 
 
 def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -338,16 +397,29 @@ class OccupancyGrid:
         occ[tuple(idx[ok].T)] = True
         return occ
 
+    def band_from_mesh(self, vertices: np.ndarray, faces: np.ndarray, radius: float = SURFACE_BAND) -> np.ndarray:
+        """Bool grid: centre within ``radius`` (m) of the mesh surface, exact (no fill)."""
+        return within_distance_of_mesh(self.centres(), vertices, faces, radius).reshape(self.shape)
+
+    def band_from_points(self, points: np.ndarray, radius: float = SURFACE_BAND) -> np.ndarray:
+        """Bool grid: centre within ``radius`` (m) of at least one of ``points`` (P, 3)."""
+        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(self.shape, dtype=bool)
+        d, _ = cKDTree(p).query(self.centres(), k=1, distance_upper_bound=radius * (1 + 1e-12))
+        return (np.asarray(d) <= radius).reshape(self.shape)
+
     def from_mesh(self, vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """Bool grid: centre inside the mesh or within one voxel of its surface (module doc)."""
+        """Bool grid, the solid F1's ground truth: centre inside the mesh or within one voxel of
+        its surface (module doc)."""
         from scipy.ndimage import binary_fill_holes
 
-        band = within_distance_of_mesh(self.centres(), vertices, faces, self.voxel).reshape(self.shape)
-        return binary_fill_holes(band)
+        return binary_fill_holes(self.band_from_mesh(vertices, faces, self.voxel))
 
 
-def occupancy_scores(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
-    """IoU, precision, recall, F1 of two boolean voxel grids of the same shape."""
+def occupancy_scores(pred: np.ndarray, gt: np.ndarray, prefix: str = "") -> dict[str, float]:
+    """IoU, precision, recall, F1 of two boolean voxel grids of the same shape, as
+    ``<prefix>iou``, ``<prefix>precision``, ``<prefix>recall``, ``<prefix>f1``."""
     pred, gt = np.asarray(pred, dtype=bool), np.asarray(gt, dtype=bool)
     if pred.shape != gt.shape:
         raise ShsasError(f"metrics: occupancy shapes differ {pred.shape} vs {gt.shape}")
@@ -356,7 +428,8 @@ def occupancy_scores(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     npred, ngt = int(np.count_nonzero(pred)), int(np.count_nonzero(gt))
     p = inter / npred if npred else 0.0
     r = inter / ngt if ngt else 0.0
-    return {"iou": inter / union if union else 0.0, "precision": p, "recall": r, "f1": _f1(p, r)}
+    return {f"{prefix}iou": inter / union if union else 0.0, f"{prefix}precision": p, f"{prefix}recall": r,
+            f"{prefix}f1": _f1(p, r)}
 
 
 def surface_concentration(volume: Any, vertices: np.ndarray, faces: np.ndarray, shell: float = 0.01) -> float:
@@ -390,19 +463,36 @@ def surface_concentration(volume: Any, vertices: np.ndarray, faces: np.ndarray, 
 # --------------------------------------------------------------------------------------------
 # the protocol
 class GroundTruth:
-    """The GT mesh with its fixed surface sample and 5 mm occupancy, computed once and reused
-    for every method."""
+    """The GT mesh with what every method is scored against, computed once: the fixed surface
+    sample and its face normals, the area, and on the 5 mm grid the surface band (surface F1)
+    and the filled solid (solid F1).
+
+    Attributes:
+        samples: (n_samples, 3) m; sample_normals: (n_samples, 3) unit face normals.
+        area: mesh area, m².
+        surface: bool grid, centre within :data:`SURFACE_BAND` of the surface.
+        solid: bool grid, ``surface`` (a one-voxel band) with its inside filled.
+    """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, box: SceneBox, voxel: float = VOXEL,
                  n_samples: int = GT_SAMPLES, seed: int = SEED):
+        from scipy.ndimage import binary_fill_holes
+
         self.vertices = np.asarray(vertices, dtype=np.float64)
         self.faces = np.asarray(faces, dtype=np.int64)
         if len(self.faces) == 0:
             raise ShsasError("ground truth: mesh has no faces")
         self.box, self.seed, self.n_samples = box, seed, n_samples
-        self.samples = sample_surface(self.vertices, self.faces, n_samples, seed)
+        self.samples, tri = sample_surface_faces(self.vertices, self.faces, n_samples, seed)
+        self.sample_normals = face_normals(self.vertices, self.faces)[tri]
+        self.area = _area(self.vertices, self.faces)
         self.grid = OccupancyGrid(box, voxel)
-        self.occupancy = self.grid.from_mesh(self.vertices, self.faces)
+        self.surface = self.grid.band_from_mesh(self.vertices, self.faces, SURFACE_BAND)
+        # the solid's shell is one voxel wide; with the surface band of the same width the
+        # exact distance test runs once
+        band = self.surface if SURFACE_BAND == self.grid.voxel else self.grid.band_from_mesh(
+            self.vertices, self.faces, self.grid.voxel)
+        self.solid = binary_fill_holes(band)
 
     @classmethod
     def from_survey(cls, survey: Any, voxel: float = VOXEL) -> GroundTruth | None:
@@ -412,17 +502,23 @@ class GroundTruth:
 
 
 def score_points(points: np.ndarray, gt: GroundTruth) -> dict[str, float]:
-    """Every metric for a point cloud: chamfer_l2, chamfer_l1, iou, precision, recall, f1,
-    fscore_precision, fscore_recall, fscore, points."""
+    """Every metric for a point cloud (module doc): chamfer_l2, chamfer_l1, surface_iou,
+    surface_precision, surface_recall, surface_f1, fscore(_precision, _recall),
+    fscore_2_5mm(_precision, _recall), solid_iou, solid_precision, solid_recall, solid_f1,
+    points."""
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    out = {**chamfer(pts, gt.samples), **occupancy_scores(gt.grid.from_points(pts), gt.occupancy),
-           **fscore(pts, gt.samples)}
+    out = {**chamfer(pts, gt.samples),
+           **occupancy_scores(gt.grid.band_from_points(pts, SURFACE_BAND), gt.surface, "surface_"),
+           **point_fscores(pts, gt.samples),
+           **occupancy_scores(gt.grid.from_points(pts), gt.solid, "solid_")}
     out["points"] = float(len(pts))
     return out
 
 
 def score_mesh(vertices: np.ndarray, faces: np.ndarray, gt: GroundTruth) -> dict[str, float]:
-    """Every metric for a mesh, scored through its resampled surface (module doc)."""
+    """Every metric for a mesh (module doc): those of :func:`score_points` but ``points``, with
+    the surface band measured on the mesh itself and the rest through its resampled surface,
+    plus :func:`mesh_quality` (pieces, area_ratio, normal_consistency) and faces."""
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     pts = sample_surface(v, f, gt.n_samples, gt.seed)
@@ -430,7 +526,11 @@ def score_mesh(vertices: np.ndarray, faces: np.ndarray, gt: GroundTruth) -> dict
     dense_n = int(min(MAX_MESH_SAMPLES, max(gt.n_samples, math.ceil(4 * area / gt.grid.voxel**2))))
     dense = sample_surface(v, f, dense_n, gt.seed + 1) if dense_n > gt.n_samples else pts
     occ = gt.grid.from_points(np.concatenate([pts, dense]))
-    out = {**chamfer(pts, gt.samples), **occupancy_scores(occ, gt.occupancy), **fscore(pts, gt.samples)}
+    out = {**chamfer(pts, gt.samples),
+           **occupancy_scores(gt.grid.band_from_mesh(v, f, SURFACE_BAND), gt.surface, "surface_"),
+           **point_fscores(pts, gt.samples),
+           **occupancy_scores(occ, gt.solid, "solid_"),
+           **mesh_quality(v, f, gt)}
     out["faces"] = float(len(f))
     return out
 
@@ -446,6 +546,113 @@ def score_reconstruction(points: np.ndarray | None, mesh: Any | None, gt: Ground
         out.update({f"fixed_{k}": v for k, v in score_points(fixed_points, gt).items()})
     if mesh is not None:
         out.update({f"mesh_{k}": v for k, v in score_mesh(mesh.vertices, mesh.faces, gt).items()})
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# mesh quality
+@dataclasses.dataclass(frozen=True)
+class MeshChecks:
+    """What a usable mesh of a one-piece object meets (module doc's mesh-quality keys): at most
+    ``max_pieces`` pieces, an area ratio within ``area_ratio`` (a foam or a double sheet has far
+    more area than the object, a torn mesh far less) and a normal consistency of at least
+    ``min_normal_consistency``."""
+
+    max_pieces: int = 3
+    area_ratio: tuple[float, float] = (0.7, 1.3)
+    min_normal_consistency: float = 0.85
+
+
+#: The checks the report, the CLI and the benchmarks apply.
+MESH_CHECKS = MeshChecks()
+
+
+def mesh_pieces(vertices: np.ndarray, faces: np.ndarray, share: float = PIECES_AREA_SHARE) -> int:
+    """The fewest connected components of a triangle mesh that hold ``share`` of its area.
+
+    Faces are connected when they share an edge (a non-manifold edge joins all its faces);
+    vertices at the same position are merged first, so a triangle soup that was split into
+    separate vertices counts as the surface it describes. 0 for a mesh without area.
+    """
+    import trimesh
+
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return 0
+    m = trimesh.Trimesh(v, f, process=False)
+    m.merge_vertices()
+    # trimesh's face_adjacency keeps only edges with exactly two faces: link every face to the
+    # first face of each of its edges instead, so non-manifold edges connect too
+    _, first, inverse = np.unique(m.edges_sorted, axis=0, return_index=True, return_inverse=True)
+    owner = m.edges_face
+    pairs = np.stack([owner, owner[first][inverse.ravel()]], axis=1)
+    labels = trimesh.graph.connected_component_labels(pairs, node_count=len(m.faces))
+    area = np.bincount(labels, weights=m.area_faces)
+    total = float(area.sum())
+    if not total > 0:
+        return 0
+    held = np.cumsum(np.sort(area)[::-1])
+    return int(np.searchsorted(held, share * total * (1 - 1e-12)) + 1)
+
+
+def normal_consistency(points: np.ndarray, normals: np.ndarray, gt_points: np.ndarray,
+                       gt_normals: np.ndarray) -> float:
+    """Mean |n·n_gt| at nearest points, averaged over both directions (Occupancy Networks).
+
+    Args:
+        points, normals: (P, 3) m and unit normals of the prediction's sample.
+        gt_points, gt_normals: (G, 3) the same for the ground truth.
+    Returns:
+        In [0, 1]; NaN when either set is empty.
+    """
+    p, n = np.asarray(points, np.float64).reshape(-1, 3), np.asarray(normals, np.float64).reshape(-1, 3)
+    q, m = np.asarray(gt_points, np.float64).reshape(-1, 3), np.asarray(gt_normals, np.float64).reshape(-1, 3)
+    if len(p) == 0 or len(q) == 0:
+        return math.nan
+    _, to_gt = cKDTree(q).query(p, k=1)
+    _, to_pred = cKDTree(p).query(q, k=1)
+    return float(0.5 * (np.mean(np.abs(_dot(n, m[to_gt]))) + np.mean(np.abs(_dot(m, n[to_pred])))))
+
+
+def mesh_quality(vertices: np.ndarray, faces: np.ndarray, gt: GroundTruth | None = None) -> dict[str, float]:
+    """``pieces`` always; with ``gt`` also ``area_ratio`` (mesh area / GT area) and
+    ``normal_consistency`` (the mesh's sample of ``gt.n_samples`` points against ``gt``'s)."""
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    out = {"pieces": float(mesh_pieces(v, f))}
+    if gt is not None:
+        pts, tri = sample_surface_faces(v, f, gt.n_samples, gt.seed)
+        out["area_ratio"] = _area(v, f) / gt.area
+        out["normal_consistency"] = normal_consistency(pts, face_normals(v, f)[tri], gt.samples,
+                                                       gt.sample_normals)
+    return out
+
+
+def mesh_check_failures(quality: Mapping[str, float | None], checks: MeshChecks = MESH_CHECKS
+                        ) -> list[tuple[str, str, float, float]]:
+    """The checks of :class:`MeshChecks` a mesh fails, from its :func:`mesh_quality` (keys
+    without prefix; a missing or None value is not judged).
+
+    Returns:
+        ``(key, plain-language message, measure, limit)`` per failed check.
+    """
+    out: list[tuple[str, str, float, float]] = []
+    pieces, ratio, nc = (quality.get(k) for k in ("pieces", "area_ratio", "normal_consistency"))
+    if pieces is not None and pieces > checks.max_pieces:
+        out.append(("pieces", f"the mesh is in {int(pieces)} pieces (95 % of its area), not one surface: "
+                    "probably a foam of fragments", float(pieces), float(checks.max_pieces)))
+    lo, hi = checks.area_ratio
+    if ratio is not None and ratio > hi:
+        out.append(("area_ratio", f"the mesh has {ratio:.2f}x the true area: probably a double sheet or "
+                    "fragments around the surface", float(ratio), hi))
+    elif ratio is not None and ratio < lo:
+        out.append(("area_ratio", f"the mesh has only {ratio:.2f}x the true area: parts of the surface "
+                    "are missing", float(ratio), lo))
+    if nc is not None and nc < checks.min_normal_consistency:
+        out.append(("normal_consistency", f"the mesh's faces agree with the true surface's orientation "
+                    f"by only {nc:.2f} on average (mean |cos| of the angle): a rough or crumpled surface", float(nc),
+                    checks.min_normal_consistency))
     return out
 
 

@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from pydantic import BaseModel, Field
 
-from .diagnostics import ResultWarning, fit_warnings, volume_warnings
+from .diagnostics import ResultWarning, fit_warnings, mesh_warnings, volume_warnings
 from .errors import ShsasError
 from .export import (
     read_volume_npy,
@@ -48,7 +48,13 @@ from .export import (
 from .extract import PAPER_TAU, ExtractConfig, extract, field_volume, point_cloud
 from .job_cache import JobCache, MethodCache
 from .methods import REGISTRY
-from .metrics import GroundTruth, finite_or_none, score_reconstruction
+from .metrics import (
+    METRICS_VERSION,
+    GroundTruth,
+    finite_or_none,
+    mesh_quality,
+    score_reconstruction,
+)
 from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
 from .report import MethodReport, Report, ReportFigures, SignalFit, write_report
 from .spec import ReconstructionSpec
@@ -372,7 +378,7 @@ def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn
     checkpoints in ``cache``."""
     spec, survey, s_pd, out, should_stop = job.spec, job.survey, job.s_pd, job.out, job.should_stop
     names = artifact_names(method)
-    extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION}
+    extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION, "metrics": METRICS_VERSION}
     rep = cache.finished() if all((out / n).exists() for n in names.values()) else None
     if rep is not None:
         vol = read_volume_npy(out / names["volume"])
@@ -384,7 +390,8 @@ def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn
             import trimesh
 
             mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
-            rep = rep.model_copy(update={"warnings": volume_warnings(vol, rep.threshold, rep.points) + kept})
+            rep = rep.model_copy(update={"warnings": _result_warnings(vol, rep.threshold, rep.points, rep.metrics)
+                                         + kept})
             progress(1.0, method, {"cached": 1.0})
             return MethodOutput(rep, vol, mesh_, fit)
         # reconstruction done, extraction settings (or code) changed: extract again, no refit
@@ -442,20 +449,28 @@ def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth 
     write_point_cloud_ply(cloud, out / names["pointcloud"])
     write_mesh_ply(mesh_, out / names["mesh_ply"])
     glb = write_mesh_glb(mesh_, out / names["mesh_glb"])
-    metrics: dict[str, float | None] = {}
     if gt is not None:
         check_stop(should_stop)
         # the paper's fixed level beside the rule's, so a figure can be compared with Table 1
         fixed = point_cloud(vol, PAPER_TAU).points
-        metrics = finite_or_none(score_reconstruction(cloud.points, mesh_, gt, fixed))
+        metrics: dict[str, float | None] = finite_or_none(score_reconstruction(cloud.points, mesh_, gt, fixed))
+    else:  # the mesh's pieces need no ground truth: a foam shows without it
+        metrics = {"mesh_pieces": mesh_quality(mesh_.vertices, mesh_.faces)["pieces"]}
     rep = MethodReport(method=method, sh_degree=sh_degree_of(method, spec), threshold=tau,
                        points=len(cloud), faces=len(mesh_.faces), seconds=time.perf_counter() - t0,
                        metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
                        artifacts=names, origin_offset=glb["origin_offset"],
-                       warnings=volume_warnings(vol, tau, len(cloud)) + list(fit_warns or []))
+                       warnings=_result_warnings(vol, tau, len(cloud), metrics) + list(fit_warns or []))
     cache.mark_done(rep, extract_key)
     progress(1.0, method, {})
     return rep, mesh_
+
+
+def _result_warnings(vol: Volume, tau: float, n_points: int, metrics: dict[str, float | None]
+                     ) -> list[ResultWarning]:
+    """The volume's checks; the mesh's only when the volume passed (a collapsed or fog-filled
+    volume's mesh says nothing more)."""
+    return volume_warnings(vol, tau, n_points) or mesh_warnings(metrics)
 
 
 def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tuple[Any, FitResult]:

@@ -29,26 +29,33 @@ from .volume import Volume
 REPORT_SCHEMA_VERSION = 1
 
 METRICS_PROTOCOL = (
-    "metrics protocol (shsas_core/metrics.py): GT surface sample 20,000 area-weighted points (seed 0); Chamfer-L2 = sum of the "
-    "two mean squared NN distances (m²); Chamfer-L1 = mean of the two unsquared means (m); "
-    "IoU/precision/recall/F1 on 5 mm voxels over the scene box (GT: inside or within one voxel of "
-    "the surface; prediction: voxels holding a point / mesh sample); F-score at 5 mm on points. "
-    "pc_* = thresholded point cloud (τ by the extraction rule), fixed_* = point cloud at the "
-    "paper's fixed level τ = 0.2, mesh_* = marching-cubes mesh resampled to points."
+    "metrics protocol (shsas_core/metrics.py, surfaces): GT surface sample 20,000 area-weighted points (seed 0). "
+    "surface_* (primary): IoU/precision/recall/F1 on 5 mm voxels over the scene box, a voxel belonging to a "
+    "surface when its centre is within 5 mm of it (GT: the mesh surface; prediction: a point, or the mesh "
+    "surface), no fill. fscore / fscore_2_5mm: F-score at 5 mm / 2.5 mm on points. Chamfer-L2 = sum of the "
+    "two mean squared NN distances (m²); Chamfer-L1 = mean of the two unsquared means (m). solid_* "
+    "(secondary, the paper code's convention): GT voxels inside or within one voxel of the surface, "
+    "predicted voxels holding a point / mesh sample. Mesh quality: pieces (connected components holding "
+    "95 % of the area), area_ratio (mesh / GT area), normal_consistency (mean |n·n_gt| at nearest points, "
+    "both ways). pc_* = thresholded point cloud (τ by the extraction rule), fixed_* = point cloud at the "
+    "paper's fixed level τ = 0.2, mesh_* = the extracted mesh."
 )
 
 #: The scored outputs of a method, in table order: (metric key prefix, label).
 OUTPUT_ROWS: list[tuple[str, str]] = [("pc", "point cloud"), ("fixed", "point cloud, τ = 0.2"), ("mesh", "mesh")]
 
-#: Metrics shown in the HTML table and the CLI, in this order (key, header, format).
+#: Metrics shown in the HTML table and the CLI, in this order (key, header, format): the primary
+#: surface F1 first, the paper code's solid F1 after the point scores, then the mesh's quality.
 TABLE_COLUMNS: list[tuple[str, str, str]] = [
+    ("surface_f1", "surface F1", "{:.3f}"),
+    ("fscore", "F@5mm", "{:.3f}"),
+    ("fscore_2_5mm", "F@2.5mm", "{:.3f}"),
     ("chamfer_l2", "Chamfer-L2 (m²)", "{:.3e}"),
     ("chamfer_l1", "Chamfer-L1 (m)", "{:.3e}"),
-    ("iou", "IoU", "{:.3f}"),
-    ("precision", "Prec.", "{:.3f}"),
-    ("recall", "Rec.", "{:.3f}"),
-    ("f1", "F1", "{:.3f}"),
-    ("fscore", "F@5mm", "{:.3f}"),
+    ("solid_f1", "solid F1 (paper code)", "{:.3f}"),
+    ("pieces", "pieces", "{:.0f}"),
+    ("area_ratio", "area ratio", "{:.2f}"),
+    ("normal_consistency", "normal cons.", "{:.3f}"),
 ]
 
 
@@ -63,7 +70,8 @@ class MethodReport(BaseModel):
     points: int = Field(ge=0, description="points in the point cloud")
     faces: int = Field(ge=0, description="triangles in the mesh")
     seconds: float = Field(ge=0, description="wall time of this method (fit/backprojection + extraction)")
-    metrics: dict[str, float | None] = Field(default_factory=dict, description="pc_* and mesh_* metrics; None = undefined")
+    metrics: dict[str, float | None] = Field(default_factory=dict, description="pc_*, fixed_* and mesh_* metrics "
+                                             "(METRICS_PROTOCOL); mesh_pieces also without ground truth; None = undefined")
     signal_errors: dict[str, float] = Field(default_factory=dict, description="novel-view transient errors")
     loss_curve: list[tuple[int, float]] = Field(default_factory=list, description="(iteration, loss)")
     artifacts: dict[str, str] = Field(default_factory=dict, description="kind -> file name in out_dir")
@@ -308,7 +316,9 @@ def warnings_html(report: Report) -> str:
             continue
         items = "".join(f"<li><b>{esc(w.code)}</b>: {esc(w.message)} (measure {w.measure:.3g}, "
                         f"limit {w.limit:.3g})</li>" for w in m.warnings)
-        boxes.append(f"<div class='warn'><b>{esc(m.method)}: this result looks failed</b><ul>{items}</ul></div>")
+        what = ("its mesh is not one clean surface" if all(w.code.startswith("mesh_") for w in m.warnings)
+                else "this result looks failed")
+        boxes.append(f"<div class='warn'><b>{esc(m.method)}: {what}</b><ul>{items}</ul></div>")
     if not boxes:
         return ""
     return ("<h2>Warnings</h2>" + "".join(boxes)

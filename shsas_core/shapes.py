@@ -68,12 +68,74 @@ def scene() -> trimesh.Trimesh:
     return trimesh.util.concatenate(parts)
 
 
+# -- scenes where backprojection is known to fail: thin, lying, concave, shadowed -------------
+def _on_floor(m: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``m`` moved so that it stands on z = 0, centred on the turntable axis in x and y."""
+    lo, hi = m.bounds
+    m.apply_translation([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
+    return m
+
+
+def tilted_plate() -> trimesh.Trimesh:
+    """Thin plate 16 cm x 14 cm x 4 mm, tilted 30° from the floor about the x axis with one long
+    edge on the floor: 12.3 cm deep (y) and 7.3 cm high. Two faces 4 mm apart, thinner than a
+    range resolution cell of the default pulse (1.7 cm), seen from most sensors at a slant."""
+    m = trimesh.creation.box(extents=[0.16, 0.14, 0.004])
+    m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(30.0), [1, 0, 0]))
+    return _on_floor(m)
+
+
+def pipe() -> trimesh.Trimesh:
+    """A pipe lying on a floor plate: a tube of outer radius 3 cm, wall 4 mm, 18 cm long along
+    x, resting on a 24 cm x 24 cm x 5 mm plate (tube axis at z = 3.5 cm). The sidescan case:
+    a low object on a strong flat return, open ends to look into."""
+    plate = trimesh.creation.box(extents=[0.24, 0.24, 0.005])
+    plate.apply_translation([0.0, 0.0, 0.0025])
+    tube = trimesh.creation.annulus(r_min=0.026, r_max=0.03, height=0.18, sections=64)
+    tube.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))  # axis along x
+    tube.apply_translation([0.0, 0.0, 0.005 + 0.03])
+    return _on_floor(trimesh.util.concatenate([plate, tube]))
+
+
+def bowl() -> trimesh.Trimesh:
+    """Concave hemispherical bowl, opening up: outer radius 9 cm, wall 5 mm, resting on its
+    lowest point; the rim at z = 9 cm. Its inside hides behind the rim from low sensors and
+    echoes from several places at once from high ones."""
+    ro, ri, n = 0.09, 0.085, 48
+    a = np.linspace(-np.pi / 2, 0.0, n)
+    inner = np.stack([ri * np.cos(a), ro + ri * np.sin(a)], 1)  # from the bottom up to the rim
+    outer = np.stack([ro * np.cos(a[::-1]), ro + ro * np.sin(a[::-1])], 1)  # rim down to the bottom
+    profile = np.concatenate([inner, outer])
+    profile[[0, -1], 0] = 0.0  # both ends on the axis: the revolved surface is closed
+    m = trimesh.creation.revolve(profile, sections=96)
+    if m.volume < 0:  # the profile's direction decides the winding
+        m.invert()
+    return _on_floor(m)
+
+
+def shadow() -> trimesh.Trimesh:
+    """Two objects, one in the other's shadow: a wall 3 cm thick, 16 cm wide (y) and 14 cm high
+    at x = -3 cm, and a ball of radius 3 cm on the floor 3 cm behind it (x = 4.5 cm). From the
+    sensors on the wall's side the ball is hidden below about 60° of elevation."""
+    wall = trimesh.creation.box(extents=[0.03, 0.16, 0.14])
+    wall.apply_translation([-0.03, 0.0, 0.07])
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    ball.apply_translation([0.045, 0.0, 0.03])
+    m = trimesh.util.concatenate([wall, ball])
+    m.apply_translation([0.0, 0.0, -m.bounds[0, 2]])
+    return m
+
+
 #: Built-in shapes by name.
 SHAPES: dict[str, Callable[[], trimesh.Trimesh]] = {
     "sphere": sphere,
     "cube": cube,
     "torus": torus,
     "scene": scene,
+    "plate": tilted_plate,
+    "pipe": pipe,
+    "bowl": bowl,
+    "shadow": shadow,
 }
 
 

@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="Example: shsas demo --out demo_out --mesh ../shared/data/meshes/bunny.obj")
     p.add_argument("--out", default="demo_out", metavar="DIR", help="output folder (default demo_out)")
     src = p.add_mutually_exclusive_group()
-    src.add_argument("--shape", default="sphere", help="built-in shape: sphere, cube, torus or scene (default sphere)")
+    src.add_argument("--shape", default="sphere", help="built-in shape: sphere, cube, torus, scene, plate, pipe, bowl or shadow (default sphere)")
     src.add_argument("--mesh", metavar="PATH", help="any mesh file in metres, z up, standing on z = 0")
     p.add_argument("--heights", type=int, default=DEMO_HEIGHTS, help=f"sensor circles (default {DEMO_HEIGHTS})")
     p.add_argument("--angles", type=int, default=DEMO_ANGLES, help=f"pings per circle (default {DEMO_ANGLES})")

@@ -14,10 +14,12 @@ GT_BOX_MARGIN = 0.02
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "evaluate", help="score reconstructions against a ground-truth mesh (Chamfer, IoU, F1, F-score)",
-        description="Score existing outputs with the project's metrics (shsas_core/metrics.py): Chamfer-L2 (m²) and "
-        "Chamfer-L1 (m) against 20,000 area-weighted GT surface samples, IoU/precision/recall/F1 on "
-        "5 mm voxels over the scene box, F-score at 5 mm. TARGET is a `shsas reconstruct` output "
+        "evaluate", help="score reconstructions against a ground-truth mesh (surface F1, F-score, Chamfer, mesh quality)",
+        description="Score existing outputs with the project's metrics (shsas_core/metrics.py): surface "
+        "IoU/precision/recall/F1 on 5 mm voxels over the scene box (voxels within 5 mm of the surface; "
+        "the primary score), F-score at 5 mm and 2.5 mm and Chamfer-L2 (m²) / Chamfer-L1 (m) against "
+        "20,000 area-weighted GT surface samples, the paper code's solid F1, and for meshes pieces, area "
+        "ratio and normal consistency. TARGET is a `shsas reconstruct` output "
         "folder (every {method}_pointcloud.ply and {method}_mesh.ply in it is scored) or one PLY/OBJ/"
         "STL/GLB file (a file without faces is scored as a point cloud).",
         epilog="The scene box comes from --gt when it is a survey, else from TARGET/report.json, "
@@ -155,7 +157,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({k: finite_or_none(v) for k, v in res.items()}, indent=2))
         return 0
-    from .reconstruct import console, metrics_table
+    from ..diagnostics import mesh_warnings
+    from .reconstruct import console, metrics_table, print_warnings
 
     console().print(metrics_table(res, title=f"evaluation of {args.target} against {args.gt}"))
+    print_warnings({name: mesh_warnings(m) for name, m in res.items()})
     return 0

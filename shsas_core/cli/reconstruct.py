@@ -60,8 +60,8 @@ def print_result(result) -> None:
     con = console()
     if any(k.startswith(("pc_", "fixed_", "mesh_")) for m in result.metrics.values() for k in m):
         con.print(metrics_table(result.metrics))
-    else:
-        con.print("no ground truth in the survey: no geometry metrics")
+    if not any(k.startswith("pc_") for m in result.metrics.values() for k in m):
+        con.print("no ground truth in the survey: no geometry scores (only the mesh's pieces)")
     print_warnings(result.warnings)
     out = Path(result.out_dir)
     con.print(f"outputs in [bold]{out}[/bold]: {', '.join(result.artifacts)}")

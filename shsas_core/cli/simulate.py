@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--mesh", metavar="PATH", help="mesh file (OBJ/PLY/STL/GLB) in metres, z up")
-    src.add_argument("--shape", metavar="NAME", help="built-in shape: sphere, cube, torus or scene")
+    src.add_argument("--shape", metavar="NAME", help="built-in shape: sphere, cube, torus, scene, plate, pipe, bowl or shadow")
     src.add_argument("--points", metavar="FILE.npy",
                      help="point scatterers instead of a mesh: (M, 3) positions or (M, 6) positions "
                      "and normals, metres (no occlusion, no ground truth mesh)")

@@ -57,7 +57,8 @@ def test_rescore_scores_the_same_cloud_as_the_pipeline_at_each_tau(levels) -> No
     assert set(out) == set(levels.RULES)
     for name, s in out.items():
         want = score_points(point_cloud(vol, s["tau"]).points, gt)
-        assert s["f1"] == pytest.approx(want["f1"]) and s["chamfer_l2"] == pytest.approx(want["chamfer_l2"]), name
+        for key in ("surface_f1", "solid_f1", "chamfer_l2", "fscore"):
+            assert s[key] == pytest.approx(want[key]), (name, key)
     assert out["paper"]["tau"] == pytest.approx(0.2) and out["fixed0.1"]["tau"] == pytest.approx(0.1)
 
 

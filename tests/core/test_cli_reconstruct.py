@@ -27,9 +27,14 @@ def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     cap = capsys.readouterr()
     text = cap.out
     assert "backprojection" in text and "report.html" in text and "Chamfer" in text
-    assert "warning:" not in cap.err  # a good backprojection raises nothing
     rep = json.loads((out / "report.json").read_text())
-    assert rep["methods"][0]["warnings"] == []
+    codes = [w["code"] for w in rep["methods"][0]["warnings"]]
+    # a good backprojection passes the volume's checks; its mesh is judged by its measured
+    # quality, one stderr line per failed bound
+    from shsas_core.diagnostics import mesh_warnings
+
+    assert codes == [w.code for w in mesh_warnings(rep["methods"][0]["metrics"])], codes
+    assert cap.err.count("warning: backprojection: the mesh") == len(codes) == cap.err.count("warning:")
     assert rep["spec"]["grid"] == 20 and rep["spec"]["methods"] == ["backprojection"]
     # evaluate the folder against the survey: same numbers as the pipeline computed
     rc = main(["evaluate", str(out), "--gt", str(path), "--json"])
@@ -37,6 +42,12 @@ def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     ev = json.loads(capsys.readouterr().out)
     for k, v in rep["methods"][0]["metrics"].items():
         assert ev["backprojection"][k] == pytest.approx(v, rel=1e-9, abs=1e-12), k
+    # the table form prints the new columns and the same mesh warnings as the run
+    assert main(["evaluate", str(out), "--gt", str(path)]) == 0
+    cap = capsys.readouterr()
+    assert "surface F1" in cap.out and "solid F1" in cap.out and "pieces" in cap.out
+    assert [ln for ln in cap.err.splitlines() if ln.startswith("warning:")] == [
+        f"warning: {w.line('backprojection')}" for w in mesh_warnings(rep["methods"][0]["metrics"])]
     # a single mesh file against a GT mesh file with an explicit box
     gt_path = tmp_path / "gt.ply"
     trimesh.Trimesh(survey.gt_vertices, survey.gt_faces).export(gt_path)
@@ -49,7 +60,7 @@ def test_reconstruct_then_evaluate(survey_file, tmp_path, capsys, monkeypatch):
     rc = main(["evaluate", str(out / "backprojection_pointcloud.ply"), "--gt", str(gt_path), f"--box={box}", "--json"])
     assert rc == 0
     pc = json.loads(capsys.readouterr().out)["backprojection_pointcloud"]
-    assert np.isclose(pc["pc_iou"], rep["methods"][0]["metrics"]["pc_iou"])
+    assert np.isclose(pc["pc_surface_iou"], rep["methods"][0]["metrics"]["pc_surface_iou"])
 
 
 def test_a_failed_result_prints_a_warning_and_reaches_the_report(survey_file, tmp_path, capsys, monkeypatch):

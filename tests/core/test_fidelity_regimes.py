@@ -86,3 +86,26 @@ def test_limited_regime_selects_the_arc_of_a_survey(bench) -> None:
     np.testing.assert_array_equal(kept.extras["ping_index"], [0, 1, 2, 3, 8, 9, 10, 11])
     assert np.all(azimuth_deg(kept.tx) < 180.0)
     assert bench.REGIMES["dense"].select(survey) is survey
+
+
+def test_hard_scenes_are_built_in_shapes_and_the_specular_one_scatters_only_through_its_lobe(bench) -> None:
+    from shsas_core.shapes import SHAPES
+
+    for scene in bench.HARD_SCENES:
+        assert bench.scene_source(scene, Path("/nonexistent")) in SHAPES, scene
+    spec = bench.REGIMES["dense"].simulation_config(0, "specular").scattering
+    assert (spec.lambert, spec.specular_weight) == ("none", 1.0) and spec.specular_exponent > 20
+    # the regime's own settings hold for every other scene, and the regime's seed for all
+    assert bench.REGIMES["dense"].simulation_config(0, "bowl") == bench.REGIMES["dense"].simulation_config(0)
+    assert bench.REGIMES["noisy"].simulation_config(2, "specular").snr_db == 5.0
+
+
+def test_mesh_check_flags_a_foam_and_spares_multi_piece_scenes(bench) -> None:
+    def cell(scene: str, pieces: float, ratio: float) -> object:
+        return bench.Cell("dense", scene, 0, "backprojection", {"mesh_pieces": pieces, "mesh_area_ratio": ratio,
+                                                                "mesh_normal_consistency": 0.9, "seconds": 1.0}, "")
+
+    bad = bench.mesh_check("backprojection", [cell("bunny", 485.0, 2.2), cell("sphere", 1.0, 1.0)])
+    assert bad.status == "FAIL" and "bunny/seed0: pieces, area_ratio" in bad.detail and "sphere" not in bad.detail
+    ok = bench.mesh_check("backprojection", [cell("pipe", 2.0, 1.0), cell("sphere", 1.0, 1.1)])
+    assert ok.status == "PASS" and "1 run(s)" in ok.detail

@@ -128,11 +128,13 @@ def test_two_cubes_offset_by_known_distance():
     gt = GroundTruth(a.vertices, a.faces, box)
     same = score_mesh(a.vertices, a.faces, gt)
     assert same["chamfer_l2"] < 1e-7 and same["fscore"] == pytest.approx(1.0)
-    # a perfect surface lies inside the GT occupancy (solid + band) but covers only its shell:
-    # precision 1, and IoU = recall = shell voxels / GT voxels
-    assert same["precision"] == 1.0 and same["iou"] == pytest.approx(same["recall"])
+    # a perfect surface lies inside the solid GT occupancy (solid + band) but covers only its
+    # shell: solid precision 1, and IoU = recall = shell voxels / GT voxels
+    assert same["solid_precision"] == 1.0 and same["solid_iou"] == pytest.approx(same["solid_recall"])
     shell = gt.grid.from_points(sample_surface(a.vertices, a.faces, 200000, seed=9))
-    assert same["recall"] == pytest.approx(shell.sum() / gt.occupancy.sum(), abs=0.01)
+    assert same["solid_recall"] == pytest.approx(shell.sum() / gt.solid.sum(), abs=0.01)
+    # the surface band of the mesh itself is the GT's band: a perfect surface scores 1
+    assert same["surface_f1"] == 1.0 and same["surface_iou"] == 1.0
     shift = np.array([0.003, 0, 0])
     b = a.copy()
     b.apply_translation(shift)
@@ -156,6 +158,7 @@ def test_two_cubes_offset_by_known_distance():
     far.apply_translation([0.02, 0, 0])
     s2 = score_points(sample_surface(far.vertices, far.faces, 20000, seed=5), gt)
     assert s2["chamfer_l2"] > s["chamfer_l2"] and s2["fscore"] < s["fscore"]
+    assert s2["surface_f1"] < s["surface_f1"] < 1.0
 
 
 def test_signal_errors():
@@ -281,3 +284,208 @@ def test_band_search_on_slivers_measures_only_nearby_triangles():
     old = reference_candidate_count(c, m.vertices, m.faces, radius)
     assert old > 0.6 * len(c) * len(m.faces)  # the old rule: nearly all pairs
     assert len(pi) < 0.02 * old
+
+
+# --------------------------------------------------------------------------------------------
+# the surface protocol: surface F1, F@2.5mm, mesh quality
+def _box_around(m, margin=0.02):
+    return SceneBox(min=tuple(m.bounds[0] - margin), max=tuple(m.bounds[1] + margin))
+
+
+def _protocol_meshes(shared):
+    from shsas_core.shapes import load_mesh
+
+    return {"sphere": load_mesh("sphere"), "cube": load_mesh("cube"),
+            "bunny": load_mesh(shared / "data" / "meshes" / "bunny.obj")}
+
+
+def test_perfectly_placed_surface_sample_scores_surface_f1_near_one(shared):
+    """A sample of the true surface (20,000 points, another seed than the GT's) is a perfect
+    surface reconstruction: surface F1 >= 0.95, while the solid F1, which also wants the inside
+    filled, scores it far lower."""
+    for name, m in _protocol_meshes(shared).items():
+        gt = GroundTruth(m.vertices, m.faces, _box_around(m))
+        s = score_points(sample_surface(m.vertices, m.faces, 20000, seed=7), gt)
+        assert s["surface_f1"] >= 0.95, (name, s)
+        assert s["surface_f1"] > s["solid_f1"] + 0.2, (name, s)
+        # the mesh itself: its band is the GT band, voxel for voxel
+        assert score_mesh(m.vertices, m.faces, gt)["surface_f1"] == 1.0, name
+
+
+def test_surface_band_from_points_matches_brute_force():
+    rng = np.random.default_rng(4)
+    box = SceneBox(min=(0.0, 0.0, 0.0), max=(0.04, 0.03, 0.035))
+    grid = OccupancyGrid(box, 0.005)
+    pts = rng.uniform(-0.005, 0.045, (40, 3))
+    got = grid.band_from_points(pts, 0.005)
+    want = (brute_nn(grid.centres(), pts) <= 0.005).reshape(grid.shape)
+    np.testing.assert_array_equal(got, want)
+    assert 0 < got.sum() < got.size
+    assert not grid.band_from_points(np.zeros((0, 3))).any()
+
+
+def test_thick_shell_and_offset_lose_surface_f1():
+    """A ±5 mm shell of points describes the surface 1 cm thick: its band reaches ~10 mm from the
+    surface, twice the GT's, so surface precision falls to about half (F@5mm stays near 1)."""
+    from shsas_core.shapes import sphere
+
+    m = sphere()
+    gt = GroundTruth(m.vertices, m.faces, _box_around(m))
+    ax = [np.arange(lo, hi, 0.0035) for lo, hi in zip(gt.box.min, gt.box.max, strict=True)]
+    c = np.stack(np.meshgrid(*ax, indexing="ij"), -1).reshape(-1, 3)
+    shell = c[within_distance_of_mesh(c, m.vertices, m.faces, 0.005)]
+    s = score_points(shell, gt)
+    assert s["surface_recall"] == 1.0 and 0.45 < s["surface_precision"] < 0.7, s
+    assert s["fscore"] > 0.95
+
+
+def test_fscore_2_5mm_matches_brute_force_loop():
+    from shsas_core.metrics import point_fscores
+
+    rng = np.random.default_rng(6)
+    a, b = rng.random((80, 3)) * 0.015, rng.random((60, 3)) * 0.015
+    p = np.mean([min(np.linalg.norm(x - y) for y in b) <= 0.0025 for x in a])
+    r = np.mean([min(np.linalg.norm(y - x) for x in a) <= 0.0025 for y in b])
+    f = point_fscores(a, b)
+    assert f["fscore_2_5mm_precision"] == pytest.approx(p) and f["fscore_2_5mm_recall"] == pytest.approx(r)
+    assert f["fscore_2_5mm"] == pytest.approx(2 * p * r / (p + r))
+    assert 0 < p < 1 and 0 < r < 1
+    assert f["fscore"] == pytest.approx(fscore(a, b, 0.005)["fscore"])
+
+
+def test_double_sheet_fails_the_area_check_and_one_sheet_passes():
+    """An offset copy 7.5 mm outside the sphere (each vertex moved along its normal) beside the
+    sphere: the double sheet a thresholded volume gives. Its area is ~2.2x the true area."""
+    from shsas_core.metrics import MESH_CHECKS, mesh_check_failures, mesh_quality
+    from shsas_core.shapes import sphere
+
+    m = sphere()
+    gt = GroundTruth(m.vertices, m.faces, _box_around(m, 0.03))
+    outer = trimesh.Trimesh(m.vertices + 0.0075 * m.vertex_normals, m.faces, process=False)
+    double = trimesh.util.concatenate([m, outer])
+    q = mesh_quality(double.vertices, double.faces, gt)
+    assert q["area_ratio"] == pytest.approx(1 + ((0.08 + 0.0075) / 0.08) ** 2, rel=0.01)
+    assert q["pieces"] == 2.0 and q["normal_consistency"] > 0.99
+    assert [f[0] for f in mesh_check_failures(q)] == ["area_ratio"]
+    assert q["area_ratio"] > MESH_CHECKS.area_ratio[1]
+    one = mesh_quality(m.vertices, m.faces, gt)
+    assert one == {"pieces": 1.0, "area_ratio": pytest.approx(1.0), "normal_consistency": pytest.approx(1.0)}
+    assert mesh_check_failures(one) == []
+    # the double sheet also widens the surface band: surface precision drops, recall stays
+    s2, s1 = score_mesh(double.vertices, double.faces, gt), score_mesh(m.vertices, m.faces, gt)
+    assert s2["surface_recall"] == 1.0 and s2["surface_precision"] < 0.8 < s1["surface_precision"]
+
+
+def _brute_pieces(v, f, share):
+    """Union-find over faces joined when they share an edge by position; then the fewest
+    largest components holding ``share`` of the area."""
+    parent = list(range(len(f)))
+
+    def find(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    key = [tuple(np.round(p, 9)) for p in v]
+    edges = [{frozenset((key[t[0]], key[t[1]])), frozenset((key[t[1]], key[t[2]])),
+              frozenset((key[t[2]], key[t[0]]))} for t in f]
+    for i in range(len(f)):
+        for j in range(i + 1, len(f)):
+            if edges[i] & edges[j]:
+                parent[find(i)] = find(j)
+    tri = v[f]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    comp: dict[int, float] = {}
+    for i in range(len(f)):
+        comp[find(i)] = comp.get(find(i), 0.0) + area[i]
+    sizes = sorted(comp.values(), reverse=True)
+    held, k = 0.0, 0
+    while held < share * sum(sizes) * (1 - 1e-12):
+        held += sizes[k]
+        k += 1
+    return k
+
+
+def test_pieces_match_brute_force_union_find():
+    """Spheres and boxes of several sizes, flecks of single triangles, a fin sharing a
+    non-manifold edge, a component touching another at a vertex only, and one part stored as a
+    triangle soup (every face its own vertices)."""
+    from shsas_core.metrics import mesh_pieces
+
+    rng = np.random.default_rng(8)
+    parts = [trimesh.creation.icosphere(1, radius=0.05), trimesh.creation.box(extents=(0.03, 0.02, 0.01))]
+    for k in range(6):
+        s = trimesh.creation.icosphere(0, radius=0.004 * (k + 1))
+        s.apply_translation(rng.uniform(0.1, 0.3, 3))
+        parts.append(s)
+    for _ in range(10):  # flecks
+        parts.append(trimesh.Trimesh(rng.uniform(-0.2, -0.1, (3, 3)), [[0, 1, 2]], process=False))
+    parts[1].apply_translation([0.2, 0, 0])
+    # a fin on an edge of the box: a third face on that edge
+    e = parts[1].vertices[parts[1].edges_unique[0]]
+    parts.append(trimesh.Trimesh(np.vstack([e, e.mean(0) + np.array([0.0, 0.0, 0.03])]), [[0, 1, 2]], process=False))
+    # a small box touching the big sphere at a vertex only
+    tip = parts[0].vertices[np.argmax(parts[0].vertices[:, 0])]
+    touch = trimesh.creation.box(extents=(0.01, 0.01, 0.01))
+    touch.apply_translation(tip - touch.vertices.min(0))
+    touch.vertices[np.argmin(np.linalg.norm(touch.vertices - tip, axis=1))] = tip
+    parts.append(touch)
+    soup = trimesh.creation.icosphere(1, radius=0.02)
+    soup.apply_translation([-0.1, 0.1, 0])
+    parts.append(trimesh.Trimesh(soup.vertices[soup.faces].reshape(-1, 3), np.arange(3 * len(soup.faces)).reshape(-1, 3),
+                                 process=False))
+    mesh = trimesh.util.concatenate(parts)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    for share in (0.5, 0.8, 0.95, 0.99, 1.0):
+        assert mesh_pieces(v, f, share) == _brute_pieces(v, f, share), share
+    assert mesh_pieces(v, f, 1.0) > mesh_pieces(v, f, 0.95) > 1
+    assert mesh_pieces(np.zeros((0, 3)), np.zeros((0, 3), int)) == 0
+
+
+def test_foam_fails_the_pieces_check_without_ground_truth():
+    from shsas_core.metrics import mesh_check_failures, mesh_quality
+
+    blobs = []
+    for k in range(12):
+        b = trimesh.creation.icosphere(1, radius=0.01)
+        b.apply_translation([0.03 * k, 0, 0])
+        blobs.append(b)
+    foam = trimesh.util.concatenate(blobs)
+    q = mesh_quality(foam.vertices, foam.faces)
+    assert q == {"pieces": 12.0}  # 11 of 12 equal blobs hold 91.7 % < 95 %
+    assert [f[0] for f in mesh_check_failures(q)] == ["pieces"]
+
+
+def test_normal_consistency_analytic_cases():
+    from shsas_core.metrics import face_normals, normal_consistency, sample_surface_faces
+
+    plane = trimesh.Trimesh([[-0.05, -0.05, 0], [0.05, -0.05, 0], [0.05, 0.05, 0], [-0.05, 0.05, 0]],
+                            [[0, 1, 2], [0, 2, 3]], process=False)
+    pts, tri = sample_surface_faces(plane.vertices, plane.faces, 4000, seed=1)
+    n = face_normals(plane.vertices, plane.faces)[tri]
+    assert normal_consistency(pts, n, pts, n) == pytest.approx(1.0)
+    assert normal_consistency(pts, -n, pts, n) == pytest.approx(1.0)  # orientation does not count
+    # the plane tilted by θ about its centre: every nearest-point pair differs by θ
+    for theta in (0.2, 0.7, 1.2):
+        t = plane.copy()
+        t.apply_transform(trimesh.transformations.rotation_matrix(theta, [1, 0, 0]))
+        q, tq = sample_surface_faces(t.vertices, t.faces, 4000, seed=2)
+        got = normal_consistency(q, face_normals(t.vertices, t.faces)[tq], pts, n)
+        assert got == pytest.approx(math.cos(theta), rel=1e-9)
+    # normals drawn uniformly on the sphere: E|cos| = 1/2
+    rng = np.random.default_rng(3)
+    noise = rng.normal(size=(200000, 3))
+    noise /= np.linalg.norm(noise, axis=1, keepdims=True)
+    many = sample_surface(plane.vertices, plane.faces, 200000, seed=4)
+    assert normal_consistency(many, noise, pts, n) == pytest.approx(0.5, abs=0.005)
+    # the same mesh scores 1, a crumpled copy (vertices jittered by 2 mm) lower
+    from shsas_core.metrics import mesh_quality
+    from shsas_core.shapes import sphere
+
+    m = sphere()
+    gt = GroundTruth(m.vertices, m.faces, _box_around(m))
+    assert mesh_quality(m.vertices, m.faces, gt)["normal_consistency"] == pytest.approx(1.0)
+    rough = m.vertices + rng.normal(scale=0.002, size=m.vertices.shape)
+    nc = mesh_quality(rough, m.faces, gt)["normal_consistency"]
+    assert 0.5 < nc < 0.85

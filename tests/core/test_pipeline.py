@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from shsas_core.diagnostics import mesh_warnings
 from shsas_core.errors import Cancelled
 from shsas_core.export import read_point_cloud_ply, read_volume_npy
 from shsas_core.pipeline import PipelineResult, artifact_names, holdout_split, run
@@ -47,7 +48,10 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     rep = load_report(res.report_json)
     assert rep.methods[0].method == "backprojection"
     assert res.device == rep.device == "cpu" and "on cpu" in (tmp_path / "report.html").read_text()
-    assert res.warnings == {"backprojection": []} and rep.methods[0].warnings == []  # a good image
+    # a good image passes the volume's checks; its mesh is judged by its measured quality
+    assert res.warnings == {"backprojection": mesh_warnings(res.metrics["backprojection"])}
+    assert rep.methods[0].warnings == res.warnings["backprojection"]
+    assert all(w.code.startswith("mesh_") for w in rep.methods[0].warnings)
     # the image lands on the 8 cm sphere: centred on it, Chamfer-L1 of a few voxels
     m = res.metrics["backprojection"]
     pts = np.stack([pc["x"], pc["y"], pc["z"]], 1)
@@ -56,14 +60,14 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
     assert 0.04 < pts.mean(0)[2] < 0.16
     assert m["pc_chamfer_l1"] < 0.025, m
     assert pc["scalar_magnitude"].min() >= rep.methods[0].threshold
-    assert 0 < m["pc_precision"] <= 1 and 0 < m["mesh_f1"] <= 1
+    assert 0 < m["pc_surface_precision"] <= 1 and 0 < m["mesh_surface_f1"] <= 1 and m["mesh_pieces"] >= 1
     assert json.loads((tmp_path / "report.json").read_text())["ground_truth"] is True
     fr = [f for f, _ in stages]
     assert fr == sorted(fr) and fr[-1] == 1.0
     # re-run: the finished method is skipped and gives the same metrics
     stages.clear()
     res2 = run(spec, survey, tmp_path, progress=lambda f, s, m: stages.append((f, s, dict(m))))
-    assert res2.metrics == res.metrics
+    assert res2.metrics == res.metrics and res2.warnings == res.warnings
     assert res.metrics["backprojection"]["points"] == rep.methods[0].points == len(pc["x"])
     assert any(m.get("cached") for _, s, m in stages if s == "backprojection")
     # a new threshold re-extracts from the saved volume without reconstructing again
@@ -80,6 +84,20 @@ def test_backprojection_pipeline_end_to_end_and_resume(tmp_path, sphere_survey):
         progress=lambda f, s, m: stages.append((f, s, dict(m))))
     assert not any(m.get("cached") for _, _, m in stages)
     assert read_volume_npy(tmp_path / names["volume"]).grid.shape == (20, 20, 20)
+
+
+def test_without_ground_truth_the_mesh_pieces_are_still_measured_and_checked(tmp_path, sphere_survey):
+    import dataclasses
+
+    from shsas_core.metrics import mesh_pieces
+
+    survey = dataclasses.replace(sphere_survey, gt_vertices=None, gt_faces=None)
+    res = run(ReconstructionSpec(methods=["backprojection"], grid=20, device="cpu"), survey, tmp_path)
+    mesh = trimesh.load(tmp_path / artifact_names("backprojection")["mesh_ply"], process=False)
+    rep = load_report(res.report_json)
+    assert not rep.ground_truth
+    assert rep.methods[0].metrics == {"mesh_pieces": float(mesh_pieces(mesh.vertices, mesh.faces))}
+    assert res.warnings["backprojection"] == mesh_warnings(rep.methods[0].metrics)
 
 
 def test_cancel_between_steps(tmp_path, sphere_survey):

@@ -32,6 +32,43 @@ def test_sphere_and_torus_dimensions():
     assert shape("scene").body_count == 4
 
 
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+def test_shapes_have_no_degenerate_faces(name):
+    m = shape(name)
+    assert m.area_faces.min() > 1e-9 * m.area  # no zero-area triangles
+    assert len(trimesh.Trimesh(m.vertices, m.faces).faces) == len(m.faces)  # processing drops none
+    assert all(b.is_volume for b in m.split(only_watertight=False))
+
+
+def test_backprojection_failure_scenes_dimensions():
+    """The plate, pipe, bowl and shadow scenes against their documented dimensions."""
+    plate = shape("plate")
+    # a 16 x 14 cm x 4 mm box turned 30° about x: depth and height from the rotation
+    c, s = np.cos(np.radians(30)), np.sin(np.radians(30))
+    np.testing.assert_allclose(plate.extents, [0.16, 0.14 * c + 0.004 * s, 0.14 * s + 0.004 * c], rtol=1e-9)
+    assert plate.volume == pytest.approx(0.16 * 0.14 * 0.004, rel=1e-9)
+    # the plate's large faces are tilted 30° from the floor
+    big = plate.face_normals[plate.area_faces > 0.25 * plate.area_faces.max()]
+    np.testing.assert_allclose(np.abs(big[:, 2]), c, rtol=1e-9)
+    pipe = shape("pipe")
+    parts = sorted(pipe.split(only_watertight=False), key=lambda b: b.extents[2])
+    assert len(parts) == 2
+    np.testing.assert_allclose(parts[0].extents, [0.24, 0.24, 0.005], rtol=1e-9)  # the floor plate
+    tube = parts[1]
+    assert tube.bounds[0, 2] == pytest.approx(0.005) and tube.extents[0] == pytest.approx(0.18)
+    # a 64-gon annulus: volume within 0.5 % of π (R² - r²) L
+    assert tube.volume == pytest.approx(np.pi * (0.03**2 - 0.026**2) * 0.18, rel=5e-3)
+    bowl = shape("bowl")
+    assert bowl.extents == pytest.approx([0.18, 0.18, 0.09], rel=1e-3)
+    assert bowl.volume == pytest.approx(2 / 3 * np.pi * (0.09**3 - 0.085**3), rel=5e-3)
+    # concave: the point above the bottom, inside the cup, is outside the solid
+    assert not bowl.contains([[0.0, 0.0, 0.05]])[0] and bowl.contains([[0.0, 0.0, 0.0025]])[0]
+    shadow = shape("shadow")
+    wall, ball = sorted(shadow.split(only_watertight=False), key=lambda b: -b.extents[2])
+    np.testing.assert_allclose(wall.extents, [0.03, 0.16, 0.14], rtol=1e-9)
+    assert ball.bounds[0, 0] - wall.bounds[1, 0] == pytest.approx(0.03, abs=1e-3)
+
 def test_load_mesh_files(tmp_path):
     cube = shape("cube")
     for ext in ("obj", "ply", "stl", "glb"):
