@@ -119,6 +119,11 @@ class SurveyMeta(_Strict):
                 "signal_kind 'baseband' and carrier_hz")
         return self
 
+    @property
+    def range_resolution(self) -> float:
+        """``c / 2B``: the two-way range resolution of the pulse band, m."""
+        return self.sound_speed / (2 * self.pulse.bandwidth)
+
 
 #: Meta fields that are objects: their fields may also be given flat, as dotted keys
 #: (``"pulse.f_start": 20000``), the way docs/formats.md's meta table names them.
