@@ -6,7 +6,7 @@ narrowband single-height scan of points in one plane (``tests/core/focus_scenes.
 what :func:`shsas_core.planar.find_focus` finds with each measure: the height, whether it is
 a focus, the heights searched, the range resolution and the seconds taken.
 
-    python benchmarks/bench_focus.py [--measures entropy,contrast]
+    python benchmarks/bench_focus.py [--measures entropy,contrast] [--only filtered,simulated]
 
 Never asserts.
 """
@@ -49,11 +49,15 @@ def scans() -> list[tuple[str, object, float | None]]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--measures", default="entropy,contrast")
+    ap.add_argument("--only", default="", help="comma-separated words: only the scans whose name holds one")
     args = ap.parse_args()
     print(f"host {os.uname().nodename}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}")
     print(f"{'scan':44s} {'measure':9s} {'z (mm)':>8s} {'true':>6s} {'found':>6s} {'searched (m)':>15s} "
           f"{'c/2B (mm)':>9s} {'s':>6s}")
+    words = [w for w in args.only.split(",") if w]
     for name, survey, truth in scans():
+        if words and not any(w in name for w in words):
+            continue
         sig = deconvolve(survey)
         for measure in args.measures.split(","):
             t = time.perf_counter()

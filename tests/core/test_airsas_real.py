@@ -91,8 +91,7 @@ def test_autofocus_recovers_perturbed_sound_speed_and_range_offset(scan, rel, dr
     assert res.correction.range_offset_m == pytest.approx(dr, abs=0.001)
 
 
-#: The cut-out's plane of focus in the converted frame: the sharpest plane of full-resolution
-#: images (docs/usage.md, "Single-height scans").
+#: The cut-out's plane of focus in the converted frame (docs/results.md, "Real data").
 CUTOUT_FOCUS_Z = -0.0115
 #: The report's plane must lie this close to it, or say there is none.
 FOCUS_TOLERANCE_M = 0.010
