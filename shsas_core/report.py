@@ -348,8 +348,9 @@ def focus_html(report: Report, figures: ReportFigures, focus: dict[str, Any]) ->
     box_z = (box["min"][2], box["max"][2]) if box else None
     lo, hi = focus["search_range_m"]
     res_mm = 1e3 * focus["range_resolution_m"]
-    search = (f"searched from z = {lo:.3f} m (the deepest plane the recording reaches) to {hi:.3f} m (the "
-              f"lowest sensor), by {esc(focus['measure'])} of backprojected planes")
+    search = (f"searched from z = {lo:.3f} m (as far below the scene box's floor as the lowest sensor stands "
+              f"above it, and no deeper than the recording reaches) to {hi:.3f} m (the lowest sensor), by "
+              f"{esc(focus['measure'])} of backprojected planes")
     curve = _img(focus_figure(focus, box_z), "focus measure along height")
     if not focus["found"]:
         return (f"<h2>No plane of focus found</h2><p>{esc(str(focus['reason']))}</p><p>{search}. The "
