@@ -298,7 +298,7 @@ def summarize(survey: Survey) -> dict[str, Any]:
         # what processing correlates with, beside meta.pulse's description (docs/formats.md)
         "pulse_samples": int(survey.pulse.size),
         "window": f"{m.pulse.window}({m.pulse.window_param:g})",
-        "range_resolution_m": m.sound_speed / (2 * m.pulse.bandwidth),
+        "range_resolution_m": m.range_resolution,
         "record_s": [float(survey.t0.min()), float(survey.t0.max() + duration)],
         "sensor_extent_m": {"min": both.min(0).round(4).tolist(), "max": both.max(0).round(4).tolist()},
         "tx_rx_baseline_m": float(np.median(np.linalg.norm(survey.tx - survey.rx, axis=1))),

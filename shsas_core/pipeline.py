@@ -250,7 +250,7 @@ def run(
     artifacts = sorted({a for r in reports for a in r.artifacts.values()} | {"report.json", "report.html"})
     timings["total"] = time.perf_counter() - t_start
     summary = summarize(survey)
-    _add_focus_height(summary, figures)
+    _add_focus(summary, figures, survey.subset(train_idx), s_pd[train_idx])
     report = Report(spec=spec, survey=summary, ground_truth=gt is not None, timings=timings,
                     device=describe_device(device), methods=reports, artifacts=artifacts)
     json_path, html_path = write_report(report, figures, out)
@@ -269,16 +269,39 @@ def run(
                           device=report.device or "", warnings=report.warnings())
 
 
-def _add_focus_height(summary: dict[str, Any], figures: ReportFigures) -> None:
-    """A single-height survey's report shows the plane of best focus: its height, from the
-    backprojection volume (else the first method's), goes into the summary's elevation entry."""
-    elev = summary.get("elevation") or {}
-    if elev.get("kind", "3d") == "3d" or not figures.volumes:
-        return
-    from .planar import volume_focus_height
+def _add_focus(summary: dict[str, Any], figures: ReportFigures, survey: Survey, signals: np.ndarray) -> None:
+    """A single-height (or elevation-poor) survey's report shows its plane of best focus.
 
-    ref = figures.volumes.get("backprojection") or next(iter(figures.volumes.values()))
-    elev["focus_height_m"] = volume_focus_height(ref)
+    :func:`~shsas_core.planar.find_focus` searches every height the geometry allows, not only
+    the scene box. Its record goes into the summary's elevation entry (``focus``); a focus
+    also gives ``focus_height_m``, the backprojection of that plane (``figures.plane``) and
+    the outline measured in it with the range resolution beside it; none found gives a
+    warning in the summary's ``warnings`` instead.
+
+    Args:
+        summary: :func:`~shsas_core.io.summarize` of the survey, updated in place.
+        figures: the report's figures, updated in place.
+        survey: the training pings. signals: (N, T) their deconvolved signals.
+    """
+    elev = summary.get("elevation") or {}
+    if elev.get("kind", "3d") == "3d":
+        return
+    from .planar import find_focus, outline, plane_image
+
+    focus = find_focus(survey, signals)
+    elev["focus"] = focus.summary()
+    figures.focus = focus
+    if not focus.found:
+        summary.setdefault("warnings", []).append(focus.reason)
+        return
+    elev["focus_height_m"] = focus.z
+    plane = plane_image(survey, signals, focus.z)
+    figures.plane = plane
+    try:
+        elev["outline"] = {**outline(plane.values, plane.grid).model_dump(),
+                           "range_resolution_m": focus.range_resolution_m}
+    except ShsasError:  # nothing outlined (an empty plane): the report shows the image alone
+        pass
 
 
 def _rewrite_json(report: Report, path: Path) -> None:

@@ -9,9 +9,10 @@ survey the product images the plane of best focus instead:
 * :func:`elevation_info` says whether the survey resolves elevation (``kind``: ``3d``,
   ``single-height`` or ``elevation-poor``) from the levels and the elevation aperture alone, so
   ``shsas info`` can tell without reading samples;
-* :func:`focus_height` finds the height of the sharpest horizontal plane (image entropy of fast
-  low-resolution backprojections, coarse grid then bounded Brent search);
-  :func:`volume_focus_height` does the same on a finished volume, slice by slice;
+* :func:`find_focus` finds the height of the sharpest horizontal plane (image entropy of fast
+  low-resolution backprojections, coarse grid then bounded Brent search) anywhere between the
+  deepest plane the recording reaches and the sensors, and says when there is none;
+  :func:`volume_focus_height` finds the sharpest slice of a finished volume;
 * :func:`plane_image` backprojects one horizontal plane at full resolution;
 * :func:`outline` measures an object's extent and edge width in a plane image.
 
@@ -24,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -41,6 +42,18 @@ LEVEL_TOLERANCE_M = 1e-3
 ELEVATION_POOR_FRACTION = 0.5
 #: Pixels along the longest axis of the low-resolution images of the focus-height search.
 SEARCH_PIXELS = 48
+#: The focus search's measure: entropy found the cut-out's plane on the real AirSAS scan
+#: (-10.3 mm against about -11.5) and the simulated narrowband scan's; contrast landed at
+#: -35.4 mm on the real scan
+#: (docs/usage.md, "Single-height scans").
+FOCUS_MEASURE: Sharpness = "entropy"
+#: The focus search images at most this many pings (evenly spread) ...
+FOCUS_MAX_PINGS = 360
+#: ... on at most this many coarse planes.
+FOCUS_MAX_PLANES = 240
+#: A focus must lie this far (nats of entropy, or of log contrast) below both ends of the
+#: search: near the sensors the measure flattens, and its noise there is a few thousandths.
+FOCUS_MIN_DEPTH = 0.02
 #: Gaussian smoothing (pixels) of the magnitude before :func:`outline` finds the object's region.
 OUTLINE_SMOOTH_PX = 2.0
 
@@ -148,28 +161,132 @@ def plane_image(survey: Survey, signals: np.ndarray, z: float, longest: int = 20
     return backproject_survey(survey, grid, signals, device=device)
 
 
-def focus_height(survey: Survey, signals: np.ndarray, *, measure: Sharpness = "entropy",
-                 z_range: tuple[float, float] | None = None, tolerance: float = 5e-4,
-                 pixels: int = SEARCH_PIXELS, pings: np.ndarray | None = None) -> float:
-    """Height of the sharpest horizontal plane, m.
+@dataclasses.dataclass(frozen=True)
+class FocusResult:
+    """The outcome of :func:`find_focus`.
 
-    Coarse: the focus cost of low-resolution plane images every range resolution over
-    ``z_range`` (default: the scene box's z extent widened by a quarter of its height on each
-    side: an object on the box's floor may focus just below it); fine: bounded Brent search
-    (``scipy.optimize.minimize_scalar``) in the bracket around the best coarse plane.
+    Attributes:
+        z: height of the sharpest plane searched, m (the search edge when not ``found``).
+        found: True when the sharpest plane is an interior minimum of the measure, deeper than
+            :data:`FOCUS_MIN_DEPTH` below both ends of the search.
+        reason: why no focus was found (None when found).
+        heights: (K,) heights of the coarse search planes, m, ascending.
+        costs: (K,) the measure's cost at each (lower is sharper; :func:`~.sharpness.focus_cost`).
+        measure: the sharpness measure.
+        z_range: the heights searched, m.
+        range_resolution_m: ``c / 2B`` of the survey, m.
+    """
+
+    z: float
+    found: bool
+    reason: str | None
+    heights: np.ndarray
+    costs: np.ndarray
+    measure: Sharpness
+    z_range: tuple[float, float]
+    range_resolution_m: float
+
+    def summary(self) -> dict[str, object]:
+        """A JSON-able record (report.json's ``survey.elevation.focus``)."""
+        return {"found": self.found, "z_m": self.z, "reason": self.reason, "measure": self.measure,
+                "search_range_m": list(self.z_range), "heights_m": self.heights.round(5).tolist(),
+                "costs": self.costs.round(5).tolist(), "range_resolution_m": self.range_resolution_m}
+
+
+def search_range(survey: Survey) -> tuple[float, float]:
+    """Heights the geometry allows a scene plane at, m: up to the lowest sensor, down to as far
+    below the scene box's floor as that sensor stands above it (and no deeper than the
+    recording reaches below the box's centre: every ping's record must end past the two-way
+    path). Not the scene box: an object on a turntable may focus below the box's floor, and a
+    box set too high must not hide it; a scene further below the floor than the sensors are
+    above it would mean a box wrong by more than its whole height below the sensors."""
+    box = survey.meta.scene_box
+    centre = box.center
+    top = float(min(survey.tx[:, 2].min(), survey.rx[:, 2].min()))
+    end = survey.meta.sound_speed * (survey.t0 + (survey.num_samples - 1) / survey.meta.fs)
+
+    def path(z: np.ndarray) -> np.ndarray:
+        p = np.column_stack([np.full_like(z, centre[0]), np.full_like(z, centre[1]), z])
+        return np.linalg.norm(survey.tx - p, axis=1) + np.linalg.norm(survey.rx - p, axis=1)
+
+    # the two-way path grows monotonically going down from the sensors: bisection per ping
+    hi = np.full(survey.num_pings, top)
+    lo = hi - float(end.max())
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        inside = path(mid) <= end
+        hi = np.where(inside, mid, hi)
+        lo = np.where(inside, lo, mid)
+    floor = float(box.min[2])
+    bottom = min(max(float(hi.max()), floor - max(top - floor, 0.0)), floor)
+    if not top > bottom:
+        raise ShsasError(f"focus search: no height range between the record's reach ({bottom:.3f} m) and the "
+                         f"lowest sensor ({top:.3f} m) (fix: check the sensor heights, t0 and the scene box)")
+    return bottom, top
+
+
+def _without_ping_mean(survey: Survey, signals: np.ndarray) -> np.ndarray:
+    """The signals less their mean over pings at each delay.
+
+    A return at the same delay in every ping says nothing about where along the aperture it
+    came from. On a turntable scan (the sensors stand still, the scene turns) the room's
+    echoes are such returns: they focus to one sharp spot on the rotation axis at whatever
+    height their range puts it, sharper than any object (on the AirSAS cut-out scan, below
+    the turntable at -0.5 m and -1.0 m).
+
+    Pings whose first samples lie a whole number of samples apart are aligned on one time axis
+    first; other surveys are left as they are.
+    """
+    shift = (survey.t0 - survey.t0.min()) * survey.meta.fs
+    offset = np.round(shift).astype(np.int64)
+    if np.any(np.abs(shift - offset) > 1e-3):
+        return signals
+    n, t = signals.shape
+    cols = offset[:, None] + np.arange(t)[None, :]  # each sample's place on the common axis
+    total = np.zeros(int(offset.max()) + t, dtype=signals.dtype)
+    count = np.zeros(total.size)
+    np.add.at(total, cols, signals)
+    np.add.at(count, cols, 1.0)
+    # delays that few pings recorded have no mean worth the name: left as they are
+    mean = np.where(count >= 0.5 * n, total / np.maximum(count, 1.0), 0.0)
+    return signals - mean[cols]
+
+
+def find_focus(survey: Survey, signals: np.ndarray, *, measure: Sharpness = FOCUS_MEASURE,
+               z_range: tuple[float, float] | None = None, tolerance: float = 5e-4,
+               pixels: int = SEARCH_PIXELS, pings: np.ndarray | None = None) -> FocusResult:
+    """The height of the sharpest horizontal plane over the scene box's x-y extent.
+
+    Coarse: the focus cost of low-resolution plane images every range resolution (at most
+    :data:`FOCUS_MAX_PLANES` planes) over ``z_range`` (default :func:`search_range`); fine:
+    bounded Brent search (``scipy.optimize.minimize_scalar``) between the best coarse plane's
+    neighbours. A best plane at either end of the search, or less than
+    :data:`FOCUS_MIN_DEPTH` below both ends, is not a focus: ``found`` is False and
+    ``reason`` says why.
+
+    Args:
+        survey: the survey (geometry; its samples are not read).
+        signals: (N, T) complex deconvolved signals on the survey's time axis.
+        measure: the sharpness measure (:mod:`shsas_core.sharpness`).
+        z_range: (low, high) heights to search, m.
+        tolerance: the fine search's height tolerance, m.
+        pixels: image pixels along the box's longest horizontal side.
+        pings: which pings to image (default: at most :data:`FOCUS_MAX_PINGS`, evenly spread).
     """
     from scipy.optimize import minimize_scalar
 
     from .quicklook import Geometry, QuickImager
 
     box = survey.meta.scene_box
-    pad = 0.25 * float(box.size[2])
-    lo, hi = z_range or (box.min[2] - pad, box.max[2] + pad)
+    lo, hi = z_range or search_range(survey)
     if not hi > lo:
-        raise ShsasError(f"focus height: empty z range [{lo}, {hi}]")
+        raise ShsasError(f"focus search: empty z range [{lo}, {hi}]")
+    if pings is None:
+        pings = np.unique(np.linspace(0, survey.num_pings - 1, min(FOCUS_MAX_PINGS, survey.num_pings))
+                          .round().astype(np.int64))
     # one image size for both passes: the cost's minimum over z is flat (on the AirSAS cut-out
     # within 0.001 nats over 15 mm), and a coarser image moved it by 13 mm
-    imager = QuickImager(survey, signals, pings)
+    imager = QuickImager(survey, _without_ping_mean(survey, np.asarray(signals)), pings)
     idx = imager.pings
     geo = Geometry(survey.tx[idx], survey.rx[idx], survey.t0[idx], survey.meta.sound_speed)
     xy = plane_grid(box, 0.0, pixels).points()[:, :2]
@@ -178,13 +295,36 @@ def focus_height(survey: Survey, signals: np.ndarray, *, measure: Sharpness = "e
         pts = np.column_stack([xy, np.full(len(xy), z)])
         return focus_cost(imager.image(geo, pts), measure)
 
-    step = survey.meta.sound_speed / (2 * survey.meta.pulse.bandwidth)
+    res_m = survey.meta.range_resolution
+    step = max(res_m, (hi - lo) / (FOCUS_MAX_PLANES - 1))
     zs = np.linspace(lo, hi, max(3, math.ceil((hi - lo) / step) + 1))
-    costs = [cost(float(z)) for z in zs]
+    costs = np.array([cost(float(z)) for z in zs])
     k = int(np.argmin(costs))
-    a, b = zs[max(k - 1, 0)], zs[min(k + 1, len(zs) - 1)]
-    res = minimize_scalar(cost, bounds=(float(a), float(b)), method="bounded", options={"xatol": tolerance})
-    return float(res.x)
+    common = {"heights": zs, "costs": costs, "measure": measure, "z_range": (float(lo), float(hi)),
+              "range_resolution_m": res_m}
+    if k in (0, len(zs) - 1):
+        edge = "lowest" if k == 0 else "highest"
+        return FocusResult(z=float(zs[k]), found=False, **common,  # type: ignore[arg-type]
+                           reason=f"no plane of focus: the sharpest plane is the search's {edge}, "
+                           f"z = {zs[k]:.3f} m ({measure} falls all the way to the edge of "
+                           f"{lo:.3f}..{hi:.3f} m); the survey's band ({res_m * 1e3:.0f} mm range "
+                           "resolution) or its geometry does not fix the height of the scene plane")
+    fine = minimize_scalar(cost, bounds=(float(zs[k - 1]), float(zs[k + 1])), method="bounded",
+                           options={"xatol": tolerance})
+    z, c_min = float(fine.x), min(float(fine.fun), float(costs[k]))
+    z = z if float(fine.fun) <= costs[k] else float(zs[k])
+    depth = float(min(costs[0], costs[-1])) - c_min
+    if depth < FOCUS_MIN_DEPTH:
+        return FocusResult(z=z, found=False, **common,  # type: ignore[arg-type]
+                           reason=f"no plane of focus: the sharpest plane, z = {z:.3f} m, is only "
+                           f"{depth:.3f} below the sharper end of the search ({lo:.3f}..{hi:.3f} m), "
+                           f"under {FOCUS_MIN_DEPTH}: the measure is flat over height")
+    return FocusResult(z=z, found=True, reason=None, **common)  # type: ignore[arg-type]
+
+
+def focus_height(survey: Survey, signals: np.ndarray, **kwargs: Any) -> float:
+    """:func:`find_focus`'s height alone, m (whether or not it is a focus)."""
+    return find_focus(survey, signals, **kwargs).z
 
 
 def volume_focus_height(volume: Volume, measure: Sharpness = "entropy") -> float:

@@ -136,6 +136,8 @@ class ReportFigures:
     meshes: dict[str, Any] = dataclasses.field(default_factory=dict)
     gt_mesh: Any | None = None
     signal_fits: dict[str, SignalFit] = dataclasses.field(default_factory=dict)
+    #: the backprojection of a single-height survey's plane of best focus, (nx, ny, 1)
+    plane: Volume | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -182,16 +184,19 @@ def mip_figure(volumes: dict[str, Volume]) -> bytes:
     return _png(fig)
 
 
-def plane_figure(volumes: dict[str, Volume], z: float) -> bytes:
-    """PNG: each method's horizontal slice nearest height ``z`` (normalised magnitude), side by
-    side: what a single-height survey shows instead of projections of a 3-D volume."""
+def plane_figure(volumes: dict[str, Volume], z: float, plane: Volume | None = None) -> bytes:
+    """PNG: the plane at height ``z`` (normalised magnitude) side by side: ``plane`` (its own
+    backprojection, when given), then each method's slice nearest ``z`` where its grid holds
+    ``z``: what a single-height survey shows instead of projections of a 3-D volume."""
     plt = _plt()
-    names = list(volumes)
-    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 3.6), squeeze=False)
-    for c, name in enumerate(names):
-        vol = volumes[name]
+    panels: list[tuple[str, Volume, int]] = [("backprojection of the plane", plane, 0)] if plane is not None else []
+    for name, vol in volumes.items():
         zs = vol.grid.axes()[2]
         k = int(np.argmin(np.abs(zs - z)))
+        if abs(zs[k] - z) <= vol.grid.spacing[2]:
+            panels.append((f"{name}: z = {zs[k]:.3f} m", vol, k))
+    fig, axes = plt.subplots(1, max(len(panels), 1), figsize=(3.6 * max(len(panels), 1), 3.6), squeeze=False)
+    for c, (title, vol, k) in enumerate(panels):
         img = np.abs(np.asarray(vol.values)[:, :, k])
         peak = float(img.max())
         img = img / peak if peak > 0 else img
@@ -201,8 +206,26 @@ def plane_figure(volumes: dict[str, Volume], z: float) -> bytes:
                   aspect="equal")
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
-        ax.set_title(f"{name}: z = {zs[k]:.3f} m", fontsize=9)
+        ax.set_title(title, fontsize=9)
     fig.tight_layout()
+    return _png(fig)
+
+
+def focus_figure(focus: dict[str, Any], box_z: tuple[float, float] | None = None) -> bytes:
+    """PNG: the focus measure against height (``planar.FocusResult.summary()``), the chosen
+    plane marked and the scene box's height shaded."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 2.8))
+    ax.plot(focus["heights_m"], focus["costs"], lw=1.0, marker=".", ms=3)
+    if box_z is not None:
+        ax.axvspan(*box_z, color="0.85", zorder=0, label="scene box")
+    ax.axvline(focus["z_m"], color="C3" if focus["found"] else "0.4", ls="-" if focus["found"] else ":",
+               label=("plane of best focus" if focus["found"] else "sharpest plane (search edge: no focus)"))
+    ax.set_xlabel("plane height z (m)")
+    ax.set_ylabel(f"{focus['measure']} (lower = sharper)" if focus["measure"] == "entropy"
+                  else f"{focus['measure']} cost (lower = sharper)")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
     return _png(fig)
 
 
@@ -319,10 +342,43 @@ def warnings_html(report: Report) -> str:
         what = ("its mesh is not one clean surface" if all(w.code.startswith("mesh_") for w in m.warnings)
                 else "this result looks failed")
         boxes.append(f"<div class='warn'><b>{esc(m.method)}: {what}</b><ul>{items}</ul></div>")
+    survey_warnings = [str(w) for w in report.survey.get("warnings") or []]
+    if survey_warnings:
+        items = "".join(f"<li>{esc(w)}</li>" for w in survey_warnings)
+        boxes.insert(0, f"<div class='warn'><b>survey</b><ul>{items}</ul></div>")
     if not boxes:
         return ""
     return ("<h2>Warnings</h2>" + "".join(boxes)
             + "<p><small>Checks and limits: docs/usage.md, “Warnings”.</small></p>")
+
+
+def focus_html(report: Report, figures: ReportFigures, focus: dict[str, Any]) -> str:
+    """The plane-of-focus section of a single-height survey's report: the plane (or why there
+    is none), the measure along height, and the object's size with the range resolution."""
+    esc = html.escape
+    box = report.survey.get("scene_box_m") or {}
+    box_z = (box["min"][2], box["max"][2]) if box else None
+    lo, hi = focus["search_range_m"]
+    res_mm = 1e3 * focus["range_resolution_m"]
+    search = (f"searched from z = {lo:.3f} m (as far below the scene box's floor as the lowest sensor stands "
+              f"above it, and no deeper than the recording reaches) to {hi:.3f} m (the lowest sensor), by "
+              f"{esc(focus['measure'])} of backprojected planes")
+    curve = _img(focus_figure(focus, box_z), "focus measure along height")
+    if not focus["found"]:
+        return (f"<h2>No plane of focus found</h2><p>{esc(str(focus['reason']))}</p><p>{search}. The "
+                "projections below are a 3-D volume's; read them with care.</p>" + curve)
+    z = focus["z_m"]
+    out = [f"<h2>Plane of best focus (z = {z:.3f} m)</h2><p>The sharpest horizontal plane, {search}: "
+           "lowest over height. Each image below is that plane.</p>",
+           _img(plane_figure(figures.volumes, z, figures.plane), "plane"), curve]
+    o = (report.survey.get("elevation") or {}).get("outline")
+    if o:
+        ex, ey = (1e3 * v for v in o["extent_m"])
+        out.append(f"<p>Object in this plane: <b>{ex:.0f} mm × {ey:.0f} mm</b> (x × y, between its "
+                   f"edges' half-maximum points) at range resolution c / 2B = <b>{res_mm:.1f} mm</b>: "
+                   "each edge is blurred over about that much, so sizes read off this image are "
+                   "uncertain by about one range resolution.</p>")
+    return "".join(out)
 
 
 def render_html(report: Report, figures: ReportFigures) -> str:
@@ -362,15 +418,12 @@ def render_html(report: Report, figures: ReportFigures) -> str:
     else:
         parts.append("<h2>Metrics</h2><p>The survey has no ground truth; no geometry metrics.</p>")
     elev = report.survey.get("elevation") or {}
-    plane_z = elev.get("focus_height_m")
     if elev.get("kind", "3d") != "3d":
         parts.append(f"<h2>Elevation</h2><p class='note'>{esc(str(elev.get('message', '')))}</p>")
-    if figures.volumes and plane_z is not None and elev.get("kind", "3d") != "3d":
-        # a projection over z of a survey without elevation aperture smears the focused plane
-        parts.append(f"<h2>Plane of best focus (z = {plane_z:.3f} m)</h2><p>Each method's horizontal "
-                     "slice at the height where the backprojection is sharpest (lowest image entropy "
-                     "over the volume's slices).</p>" + _img(plane_figure(figures.volumes, plane_z), "plane"))
-    elif figures.volumes:
+    focus = elev.get("focus")
+    if focus is not None and elev.get("kind", "3d") != "3d":
+        parts.append(focus_html(report, figures, focus))
+    if figures.volumes and not (focus and focus["found"]):
         parts.append("<h2>Maximum-intensity projections</h2>" + _img(mip_figure(figures.volumes), "MIP"))
     if figures.meshes:
         parts.append("<h2>Meshes</h2>" + _img(mesh_figure(figures.meshes, figures.gt_mesh), "meshes"))

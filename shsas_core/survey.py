@@ -119,6 +119,11 @@ class SurveyMeta(_Strict):
                 "signal_kind 'baseband' and carrier_hz")
         return self
 
+    @property
+    def range_resolution(self) -> float:
+        """``c / 2B``: the two-way range resolution of the pulse band, m."""
+        return self.sound_speed / (2 * self.pulse.bandwidth)
+
 
 #: Meta fields that are objects: their fields may also be given flat, as dotted keys
 #: (``"pulse.f_start": 20000``), the way docs/formats.md's meta table names them.
@@ -193,6 +198,10 @@ def parse_meta(data: dict[str, Any] | str) -> SurveyMeta:
             err = {**err, "type": "too_short"}
         field = "meta" + "".join(f".{p}" for p in parts)
         raise SurveyValidationError(field, f"{msg} (got {err.get('input')!r})"[:400], _meta_fix(err)) from None
+
+
+#: ``meta.attrs`` entries that count the survey's pings; :meth:`Survey.subset` keeps them true.
+PING_COUNT_ATTRS = ("height_levels", "pings_per_level")
 
 
 def sample_times(t0: np.ndarray, fs: float, num_samples: int) -> np.ndarray:
@@ -288,8 +297,28 @@ class Survey:
         return dataclasses.replace(
             self, tx=tx, rx=self.rx[index], samples=pick(self.samples),
             t0=self.t0[index], tx_dir=pick(self.tx_dir), rx_dir=pick(self.rx_dir), extras=extras,
-            shape=(len(tx), self.num_samples),
+            shape=(len(tx), self.num_samples), meta=self._counted_meta(tx),
         )
+
+    def _counted_meta(self, tx: np.ndarray) -> SurveyMeta:
+        """``meta`` with the attrs that count pings (:data:`PING_COUNT_ATTRS`) made true for the
+        pings at ``tx``: ``pings_per_level`` is removed when the levels no longer hold equally
+        many pings."""
+        attrs = dict(self.meta.attrs)
+        if not any(k in attrs for k in PING_COUNT_ATTRS):
+            return self.meta
+        from .planar import height_levels  # planar imports this module
+
+        levels = height_levels(tx)
+        counts = np.bincount(levels.index, minlength=levels.count)
+        if "height_levels" in attrs:
+            attrs["height_levels"] = levels.count
+        if "pings_per_level" in attrs:
+            if counts.size and counts.min() == counts.max():
+                attrs["pings_per_level"] = int(counts[0])
+            else:
+                del attrs["pings_per_level"]
+        return self.meta.model_copy(update={"attrs": attrs})
 
     def ground_truth_mesh(self):
         """The ground truth as a ``trimesh.Trimesh`` (None when absent)."""

@@ -18,7 +18,7 @@ from .. import __version__
 from ..errors import Cancelled, ShsasError
 
 #: Subcommand modules of this package, in the order of the help text (data flow order).
-CORE_COMMANDS = ["info", "convert", "simulate", "autofocus", "backproject", "fit", "reconstruct",
+CORE_COMMANDS = ["info", "convert", "edit", "simulate", "autofocus", "backproject", "fit", "reconstruct",
                  "evaluate", "demo"]
 #: Where other packages register their commands (``register(subparsers)``, as above).
 ENTRY_POINT_GROUP = "shsas.commands"

@@ -12,7 +12,7 @@ import numpy as np
 
 from shsas_core.scatterers import Scatterers
 from shsas_core.simulate import SimulationConfig, simulate
-from shsas_core.survey import SceneBox, Survey
+from shsas_core.survey import PulseParams, SceneBox, Survey
 from shsas_core.trajectory import TrajectoryConfig
 
 #: Points in the plane z = PLANE_Z, spread so the image has structure in x and y.
@@ -21,12 +21,30 @@ PLANE_POINTS = np.array([[0.0, 0.0], [0.04, 0.01], [-0.03, 0.035], [0.015, -0.04
 BOX = SceneBox(min=(-0.08, -0.08, -0.04), max=(0.08, 0.08, 0.08))
 
 
-def plane_scene(angles: int = 120) -> Survey:
-    """One height level (TX at 0.25 m), five points in the plane z = PLANE_Z."""
+#: The narrowband scans' band: 5 kHz around 20 kHz (34 mm range resolution in air).
+NARROW_BAND_HZ = (17.5e3, 22.5e3)
+
+
+def plane_scene(angles: int = 120, *, box: SceneBox = BOX, band_hz: tuple[float, float] | None = None,
+                snr_db: float | None = None, axis_echo: tuple[float, float] | None = None) -> Survey:
+    """One height level (TX at 0.25 m), five points in the plane z = PLANE_Z.
+
+    Args:
+        box: the survey's scene box (the points need not lie in it).
+        band_hz: (low, high) of the LFM pulse (default the simulator's 10-30 kHz).
+        snr_db: in-band noise (None: none).
+        axis_echo: (height, amplitude) of one more point on the rotation axis: its echo comes
+            at the same delay in every ping, like a turntable scan's room echo.
+    """
     pts = np.column_stack([PLANE_POINTS, np.full(len(PLANE_POINTS), PLANE_Z)])
+    amp = np.ones(len(pts))
+    if axis_echo is not None:
+        pts = np.vstack([pts, [0.0, 0.0, axis_echo[0]]])
+        amp = np.append(amp, axis_echo[1])
+    extra = {} if band_hz is None else {"pulse": PulseParams(f_start=band_hz[0], f_stop=band_hz[1])}
     cfg = SimulationConfig(trajectory=TrajectoryConfig(angles=angles, heights=1, height_min=0.25),
-                           snr_db=None, scene_box=BOX)
-    return simulate(None, cfg, scatterers=Scatterers(pts))
+                           snr_db=snr_db, scene_box=box, **extra)
+    return simulate(None, cfg, scatterers=Scatterers(pts, amplitude=amp))
 
 
 def levels_scene(angles: int = 60, levels: int = 3) -> Survey:

@@ -89,3 +89,58 @@ def test_autofocus_recovers_perturbed_sound_speed_and_range_offset(scan, rel, dr
     res = autofocus(bad, config=AutofocusConfig(parameters=(param,), plane_z=z_focus))
     assert res.correction.sound_speed / s.meta.sound_speed - 1 == pytest.approx(0.0, abs=0.002)
     assert res.correction.range_offset_m == pytest.approx(dr, abs=0.001)
+
+
+#: The cut-out's plane of focus in the converted frame (docs/results.md, "Real data").
+CUTOUT_FOCUS_Z = -0.0115
+#: The report's plane must lie this close to it, or say there is none.
+FOCUS_TOLERANCE_M = 0.010
+
+
+def _report(survey, out):
+    """Backprojection of the scan through the pipeline; report.json and report.html."""
+    from shsas_core.pipeline import run
+    from shsas_core.report import load_report
+    from shsas_core.spec import ReconstructionSpec
+
+    res = run(ReconstructionSpec(methods=["backprojection"], grid=32, device="cpu"), survey, out)
+    return load_report(res.report_json), (out / "report.html").read_text()
+
+
+def _check_focus(report, page) -> dict:
+    """The report's plane is within FOCUS_TOLERANCE_M of the cut-out's focus, or the report
+    says (json and page) that there is none."""
+    focus = report.survey["elevation"]["focus"]
+    lo, hi = focus["search_range_m"]
+    box = report.survey["scene_box_m"]
+    assert lo < box["min"][2] and hi > box["max"][2]  # not the scene box's heights
+    if focus["found"]:
+        assert report.survey["elevation"]["focus_height_m"] == pytest.approx(CUTOUT_FOCUS_Z, abs=FOCUS_TOLERANCE_M)
+        assert f"Plane of best focus (z = {focus['z_m']:.3f} m)" in page
+        assert "range resolution c / 2B" in page
+    else:
+        assert focus["reason"] in report.survey["warnings"] and "No plane of focus found" in page
+    return focus
+
+
+@pytest.mark.slow
+def test_report_plane_of_the_wideband_scan(scan, tmp_path):
+    s, _, _ = scan
+    report, page = _report(s, tmp_path)
+    focus = _check_focus(report, page)
+    assert focus["found"]  # 20 kHz of band: the plane is fixed to about a centimetre
+    out = report.survey["elevation"]["outline"]
+    assert out["range_resolution_m"] == pytest.approx(s.meta.range_resolution)
+    assert out["extent_m"] == pytest.approx(CUTOUT_SIZE_M, abs=3 * s.meta.range_resolution)
+
+
+@pytest.mark.slow
+def test_report_plane_of_the_band_limited_scan(scan, tmp_path):
+    """The same recording filtered to 5 kHz around 20 kHz (34 mm range resolution)."""
+    from .band_limit import band_limited
+
+    s, _, _ = scan
+    narrow = band_limited(s, 20e3, 5e3)
+    assert narrow.meta.range_resolution == pytest.approx(4 * s.meta.range_resolution)
+    report, page = _report(narrow, tmp_path)
+    _check_focus(report, page)

@@ -63,3 +63,20 @@ def test_truncated_file_refused(tmp_path):
     p.write_bytes(data[: len(data) // 2])
     with pytest.raises(SurveyValidationError, match="truncated or corrupt"):
         read_survey(p)
+
+
+def test_subset_keeps_the_ping_counting_attrs_true():
+    """A subset used to keep ``attrs.pings_per_level`` of the whole survey."""
+    from shsas_core.planar import height_levels
+
+    from .focus_scenes import levels_scene
+
+    s = levels_scene(angles=8, levels=3)
+    s.meta = s.meta.model_copy(update={"attrs": {**s.meta.attrs, "height_levels": 3, "pings_per_level": 8}})
+    half = s.subset(np.flatnonzero(np.arange(24) % 2 == 0))
+    assert half.meta.attrs["pings_per_level"] == 4 and half.meta.attrs["height_levels"] == 3
+    low = s.subset(np.flatnonzero(height_levels(s.tx).index == 0))
+    assert low.meta.attrs["height_levels"] == 1 and low.meta.attrs["pings_per_level"] == 8
+    uneven = s.subset(np.arange(10))
+    assert "pings_per_level" not in uneven.meta.attrs
+    assert s.meta.attrs["pings_per_level"] == 8  # the original is untouched
