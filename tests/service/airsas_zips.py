@@ -44,12 +44,14 @@ def cutout_zip(dest: Path, flights: int = 60, background: bool = True, junk_byte
     return dest
 
 
-def deconvolved_zip(dest: Path, levels: int = 3) -> Path:
-    """``bunny_20k_deconvolved/``: its first ``levels`` height levels and the waveform file."""
+def deconvolved_zip(dest: Path) -> Path:
+    """``bunny_20k_deconvolved/`` whole (stored, not deflated: 63 MB of float16 barely shrinks).
+
+    No subset of it is a valid scan: each level's range axis is cut from the scene box's
+    nearest and farthest corners over *all* levels, so fewer levels would map the samples to
+    other ranges (and the stored pulse to another frequency)."""
     folder = need("bunny_20k_deconvolved")
-    with zipfile.ZipFile(dest, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-        zf.write(folder / "20khz_bw_lfm.npy", "bunny_20k_deconvolved/20khz_bw_lfm.npy")
-        for k in range(levels):
-            name = f"weights_trans_{360 * k}_{360 * k + 359}.npy"
-            zf.write(folder / name, f"bunny_20k_deconvolved/{name}")
+    with zipfile.ZipFile(dest, "w", compression=zipfile.ZIP_STORED) as zf:
+        for p in sorted(folder.iterdir()):
+            zf.write(p, f"bunny_20k_deconvolved/{p.name}")
     return dest
