@@ -2,8 +2,10 @@
 
 ``load_survey(path, fmt="auto")`` detects the format from the contents (not the extension):
 canonical HDF5 (``format`` attribute), SVSS HDF5 (``DataReal``/``Position`` datasets, or a
-folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder or .zip, an
-AirSAS processed pickle, or a folder of AirSAS pulse-deconvolved pings (``weights_trans_*.npy``). Layouts and conversions: docs/formats.md.
+folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder, an AirSAS
+processed pickle, or a folder of AirSAS pulse-deconvolved pings (``weights_trans_*.npy``).
+A .zip of any of the three folder formats is detected by its member names and read member by
+member, never extracted (:mod:`.tree`). Layouts and conversions: docs/formats.md.
 """
 
 from __future__ import annotations
