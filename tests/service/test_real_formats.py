@@ -71,6 +71,7 @@ def _succeeds(client: httpx.Client, job: dict) -> dict:
     return done
 
 
+@pytest.mark.slow
 def test_real_airsas_csv_scan_zip_runs_end_to_end(client, server, tmp_path) -> None:
     """cutout_20k (first 60 flights) with bg_20k as its background/, zipped."""
     job = _accepted(client, server, cutout_zip(tmp_path / "cutout_20k.zip", flights=60), "airsas-csv")
