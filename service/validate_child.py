@@ -77,6 +77,15 @@ def _check_parts(path: str, cfg: dict) -> list[str]:
     return sorted(parts["extras"])
 
 
+def _named(survey, display_name: str | None):
+    """``survey`` with ``attrs.file`` (the importers record the file they read) naming the
+    client's file rather than the server's ``upload.part``."""
+    if not display_name or "file" not in survey.meta.attrs:
+        return survey
+    survey.meta = survey.meta.model_copy(update={"attrs": {**survey.meta.attrs, "file": display_name}})
+    return survey
+
+
 def validate(path: str, cfg: dict) -> dict:
     from pathlib import Path
 
@@ -103,7 +112,7 @@ def validate(path: str, cfg: dict) -> dict:
             rows = f["pings/samples"][ping_indices(survey.num_pings)]
     else:
         _check_memory(load_survey(path, fmt, load_samples=False), cfg)
-        survey = load_survey(path, fmt)
+        survey = _named(load_survey(path, fmt), cfg.get("display_name"))
         if survey.samples is not None and not np.all(np.isfinite(survey.samples)):
             raise SurveyValidationError("pings/samples", "contains NaN or inf")
         summary = summarize(survey)

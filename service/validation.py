@@ -73,14 +73,14 @@ def validate_in_child(path: Path, memory_bytes: int, timeout_s: float, *,
     """
     try:
         return _validate_in_child(path, memory_bytes, timeout_s, spec, worker_memory_bytes,
-                                  max_ground_truth_elements, max_extras_bytes)
+                                  max_ground_truth_elements, max_extras_bytes, display_name)
     except UploadError as exc:
         raise UploadError(exc.status, name_the_upload(exc.message, path, display_name or path.name)) from None
 
 
 def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float, spec: dict | None,
                        worker_memory_bytes: int | None, max_ground_truth_elements: int,
-                       max_extras_bytes: int) -> Checked:
+                       max_extras_bytes: int, display_name: str | None) -> Checked:
     out_dir, tmp = path.parent / "checked", path.parent / "tmp"
     out_dir.mkdir(exist_ok=True)
     tmp.mkdir(exist_ok=True)
@@ -90,6 +90,7 @@ def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float, spec: di
                TMPDIR=str(tmp))
     cfg = {"path": str(path), "memory_bytes": memory_bytes, "cpu_s": int(timeout_s) + 1, "out_dir": str(out_dir),
            "max_ground_truth_elements": max_ground_truth_elements, "max_extras_bytes": max_extras_bytes,
+           "display_name": display_name,
            "budget": worker_memory_bytes if spec is not None else None,
            "spec": json.dumps(spec) if spec is not None and worker_memory_bytes is not None else None}
     try:

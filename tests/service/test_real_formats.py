@@ -77,6 +77,7 @@ def test_real_airsas_csv_scan_zip_runs_end_to_end(client, server, tmp_path) -> N
     job = _accepted(client, server, cutout_zip(tmp_path / "cutout_20k.zip", flights=60), "airsas-csv")
     summary = client.get(f"/reconstructions/{job['id']}/survey").json()["summary"]
     assert summary["pings"] == 60 and summary["attrs"]["background_subtracted"] is True
+    assert summary["attrs"]["file"] == "cutout_20k.zip"  # the client's name, not the server's
     _succeeds(client, job)
 
 
