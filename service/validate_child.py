@@ -10,6 +10,9 @@ the output folder it is given:
   reads a canonical file, block by block, and nothing reads the upload again;
 * ``survey/``: the survey view the API serves (:mod:`service.survey_view`).
 
+With ``view_only`` it writes the survey view alone, for a job stored before views were made
+at upload (its input was validated then).
+
 Prints one JSON line on stdout: ``{"ok": true, "format": ..., "summary": {...}, "converted":
 bool}`` or ``{"ok": false, "status": 4xx, "error": ...}``.
 """
@@ -103,8 +106,9 @@ def validate(path: str, cfg: dict) -> dict:
         extras = _check_parts(path, cfg)
         # Header and geometry first (cheap, checks every shape), then the samples in blocks.
         survey = read_survey(path, load_samples=False, load_extras=False)
-        _check_memory(survey, cfg)
-        _scan_samples_finite(path)
+        if not cfg.get("view_only"):
+            _check_memory(survey, cfg)
+            _scan_samples_finite(path)
         summary = {**summarize(survey), "extras": extras}
         import h5py
 
@@ -117,6 +121,9 @@ def validate(path: str, cfg: dict) -> dict:
             raise SurveyValidationError("pings/samples", "contains NaN or inf")
         summary = summarize(survey)
         rows = survey.samples[ping_indices(survey.num_pings)]
+    if cfg.get("view_only"):  # the survey view of a job stored before views were made at upload
+        write_view(survey, summary, rows, out / FOLDER)
+        return {"format": fmt, "summary": summary, "converted": False}
     if summary["warnings"]:
         # A job on such a file would run for hours and make noise: refuse it now (docs/service.md).
         raise ShsasError(summary["warnings"][0])

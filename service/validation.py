@@ -81,18 +81,48 @@ def validate_in_child(path: Path, memory_bytes: int, timeout_s: float, *,
 def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float, spec: dict | None,
                        worker_memory_bytes: int | None, max_ground_truth_elements: int,
                        max_extras_bytes: int, display_name: str | None) -> Checked:
-    out_dir, tmp = path.parent / "checked", path.parent / "tmp"
-    out_dir.mkdir(exist_ok=True)
-    tmp.mkdir(exist_ok=True)
-    env = {k: v for k, v in os.environ.items() if k in ("PATH", "PYTHONPATH", "HOME", "LANG")}
-    # One thread each: the limit is per process and BLAS pools reserve address space per thread.
-    env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", HDF5_USE_FILE_LOCKING="FALSE",
-               TMPDIR=str(tmp))
+    out_dir = path.parent / "checked"
     cfg = {"path": str(path), "memory_bytes": memory_bytes, "cpu_s": int(timeout_s) + 1, "out_dir": str(out_dir),
            "max_ground_truth_elements": max_ground_truth_elements, "max_extras_bytes": max_extras_bytes,
            "display_name": display_name,
            "budget": worker_memory_bytes if spec is not None else None,
            "spec": json.dumps(spec) if spec is not None and worker_memory_bytes is not None else None}
+    out = _run_child(cfg, path.parent, timeout_s)
+    from .survey_view import FOLDER
+    from .validate_child import CONVERTED_NAME
+
+    return Checked(format=out["format"], summary=out["summary"],
+                   input_path=out_dir / CONVERTED_NAME if out.get("converted") else path,
+                   view_dir=out_dir / FOLDER)
+
+
+def view_in_child(path: Path, work: Path, memory_bytes: int, timeout_s: float, *,
+                  max_ground_truth_elements: int) -> Path:
+    """Write the survey view of the stored survey ``path`` in a child (as validation would have);
+    everything the child writes lies in ``work``. Returns the view's folder.
+
+    Raises:
+        UploadError: the child's refusal, or the time limit.
+    """
+    from .survey_view import FOLDER
+
+    out_dir = work / "checked"
+    cfg = {"path": str(path), "memory_bytes": memory_bytes, "cpu_s": int(timeout_s) + 1, "out_dir": str(out_dir),
+           "max_ground_truth_elements": max_ground_truth_elements, "max_extras_bytes": 1 << 62,
+           "view_only": True}
+    _run_child(cfg, work, timeout_s)
+    return out_dir / FOLDER
+
+
+def _run_child(cfg: dict, work: Path, timeout_s: float) -> dict:
+    """Run :mod:`service.validate_child` on ``cfg`` with its output and ``TMPDIR`` in ``work``."""
+    out_dir, tmp = Path(cfg["out_dir"]), work / "tmp"
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp.mkdir(exist_ok=True)
+    env = {k: v for k, v in os.environ.items() if k in ("PATH", "PYTHONPATH", "HOME", "LANG")}
+    # One thread each: the limit is per process and BLAS pools reserve address space per thread.
+    env.update(OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1", HDF5_USE_FILE_LOCKING="FALSE",
+               TMPDIR=str(tmp))
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "service.validate_child", json.dumps(cfg)],
@@ -115,12 +145,7 @@ def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float, spec: di
                                f"{tail[0][:300]}) (fix: check it with `shsas info`)") from None
     if not out.get("ok"):
         raise UploadError(int(out.get("status", 422)), str(out.get("error")))
-    from .survey_view import FOLDER
-    from .validate_child import CONVERTED_NAME
-
-    return Checked(format=out["format"], summary=out["summary"],
-                   input_path=out_dir / CONVERTED_NAME if out.get("converted") else path,
-                   view_dir=out_dir / FOLDER)
+    return out
 
 
 class ValidationsBusy(Exception):

@@ -213,3 +213,21 @@ def test_validations_past_the_bound_get_503_with_retry_after(client, server, sur
     assert tree_bytes(server["data"] / "uploads") == 0
     r = submit(client, survey_file, QUICK_SPEC)
     assert r.status_code == 202, r.text
+
+
+def test_a_job_without_a_stored_view_gets_one_made_by_a_child(client, server, survey_file: Path) -> None:
+    """A job stored before views were written at upload: its view is made once, by a
+    validation child, equal to the one validation writes, and no work folder stays behind."""
+    import shutil
+
+    r = submit(client, survey_file, QUICK_SPEC)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
+    first = client.get(f"/reconstructions/{job_id}/survey").json()
+    job_dir = server["data"] / "jobs" / job_id
+    shutil.rmtree(job_dir / "survey")
+    again = client.get(f"/reconstructions/{job_id}/survey")
+    assert again.status_code == 200, again.text
+    assert again.json() == first
+    assert (job_dir / "survey" / "survey.json").is_file()
+    assert sorted(p.name for p in job_dir.iterdir() if p.name.startswith("survey")) == ["survey"]
