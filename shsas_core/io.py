@@ -279,6 +279,28 @@ def _read_open(f: h5py.File, load_samples: bool, load_extras: bool, should_stop:
     )
 
 
+def declared_parts(path: str | os.PathLike) -> dict[str, Any]:
+    """What a canonical file declares beside its samples, read from shapes only (no data):
+    ``{"ground_truth_elements": vertices + faces, "extras": {name: bytes}}``.
+
+    For checking caps before :func:`read_survey` reads the mesh or the extras.
+    """
+    out: dict[str, Any] = {"ground_truth_elements": 0, "extras": {}}
+    with h5py.File(path, "r") as f:
+        check_hdf5_safety(f)
+        for name in ("ground_truth/vertices", "ground_truth/faces"):
+            obj = f.get(name)
+            if isinstance(obj, h5py.Dataset) and obj.ndim >= 1:
+                out["ground_truth_elements"] += int(obj.shape[0])
+        grp = f.get("extras")
+        if isinstance(grp, h5py.Group):
+            for k in grp:
+                obj = grp.get(k)
+                if isinstance(obj, h5py.Dataset):
+                    out["extras"][k] = int(obj.size) * int(obj.dtype.itemsize)
+    return out
+
+
 def summarize(survey: Survey) -> dict[str, Any]:
     """A JSON-able summary (pings, samples, band, geometry extent, scene box) for `shsas info`."""
     m = survey.meta

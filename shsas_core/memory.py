@@ -17,6 +17,8 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from .errors import ShsasError
 
 if TYPE_CHECKING:
@@ -49,6 +51,10 @@ NEURAL_SAMPLE_BYTES = 16
 VOXEL_BYTES = 160
 #: Per voxel and method: each method's complex64 volume is kept for the report.
 VOLUME_BYTES = 8
+#: Per vertex and per face of a ground-truth mesh: the survey's own float64/int64 copies (24 B
+#: each) plus the metrics' surface sample and occupancy band, the report's trimesh and figure
+#: (63 B more per element measured between 0.5 M and 2 M elements; 128 B with margin).
+GROUND_TRUTH_ELEMENT_BYTES = 128
 
 
 class MemoryBudgetError(ShsasError):
@@ -92,7 +98,11 @@ def memory_budget() -> int:
 
 
 def job_memory_bytes(survey: Survey, spec: ReconstructionSpec) -> int:
-    """Estimated peak memory of running ``spec`` on ``survey`` (samples need not be loaded)."""
+    """Estimated peak memory of running ``spec`` on ``survey`` (samples need not be loaded).
+
+    Counts everything a job holds: the samples and what is derived from them, the grid, the
+    ground-truth mesh (``survey.gt_vertices`` / ``gt_faces``, read with the header) and any
+    ``/extras`` arrays loaded with the survey (the pipeline itself does not read them)."""
     from .methods import NEURAL
     from .volume import Grid
 
@@ -102,7 +112,16 @@ def job_memory_bytes(survey: Survey, spec: ReconstructionSpec) -> int:
     voxels = Grid.over(survey.meta.scene_box, spec.grid_count(survey.meta.scene_box)).num_voxels
     n, t = survey.shape
     return (BASE_BYTES + (NEURAL_BASE_BYTES if neural else 0) + n * t * per_sample
-            + voxels * (VOXEL_BYTES + VOLUME_BYTES * len(spec.methods)))
+            + voxels * (VOXEL_BYTES + VOLUME_BYTES * len(spec.methods))
+            + ground_truth_elements(survey) * GROUND_TRUTH_ELEMENT_BYTES
+            + sum(int(np.asarray(v).nbytes) for v in survey.extras.values()))
+
+
+def ground_truth_elements(survey: Survey) -> int:
+    """Vertices plus faces of the survey's ground-truth mesh (0 without one)."""
+    if survey.gt_vertices is None or survey.gt_faces is None:
+        return 0
+    return len(survey.gt_vertices) + len(survey.gt_faces)
 
 
 def _gib(n: int) -> str:
@@ -115,8 +134,10 @@ def check_job_memory(survey: Survey, spec: ReconstructionSpec, budget: int) -> i
     need = job_memory_bytes(survey, spec)
     if need > budget:
         n, t = survey.shape
+        mesh = ground_truth_elements(survey)
+        with_mesh = f" and a ground-truth mesh of {mesh} vertices and faces" if mesh else ""
         raise MemoryBudgetError(
-            f"survey: {n} pings x {t} samples with methods {', '.join(spec.methods)} at grid {spec.grid_count(survey.meta.scene_box)} "
+            f"survey: {n} pings x {t} samples{with_mesh} with methods {', '.join(spec.methods)} at grid {spec.grid_count(survey.meta.scene_box)} "
             f"need about {_gib(need)} of memory, over the worker memory budget of {_gib(budget)} "
             f"({BUDGET_ENV}; default {DEFAULT_FRACTION:.0%} of the machine's memory) "
             "(fix: crop the samples to the scene's range window or decimate them, split the survey, "

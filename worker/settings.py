@@ -37,6 +37,18 @@ class Settings(BaseSettings):
     validate_memory_bytes: int = Field(4 * GiB, ge=512 * 1024**2,
                                        description="address-space limit of the survey validation process")
     validate_timeout_s: float = Field(300.0, gt=0, description="time limit of the survey validation process")
+    max_concurrent_validations: int = Field(
+        2, ge=1, description="validation processes running at once (across the API processes sharing the "
+        "data dir); a submission waits for a free one")
+    validate_wait_s: float = Field(
+        30.0, ge=0, description="how long a submission waits for a validation slot before it gets 503 "
+        "with Retry-After")
+    max_ground_truth_elements: int = Field(
+        2_000_000, ge=0, description="upload cap: vertices plus faces of a survey's ground-truth mesh; "
+        "larger meshes get 413")
+    max_extras_bytes: int = Field(
+        256 * 1024**2, ge=0, description="upload cap: bytes declared by the arrays under a survey's /extras; "
+        "more gets 413")
     worker_memory_bytes: int = Field(
         default_factory=default_memory_budget, ge=256 * 1024**2,
         description="memory a job may need (estimated from the survey's declared sizes and the spec); "

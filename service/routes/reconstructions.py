@@ -29,16 +29,19 @@ from ..lookup import job_of
 from ..models import ErrorOut, JobOut, JobPage
 from ..quotas import box_of, check_cpu_time, check_spec_cost, hold_slot
 from ..status import live_status
+from ..survey_view import FOLDER as VIEW_FOLDER
 from ..sweeper import upload_dir
 from ..uploads import UploadError, receive_upload
-from ..validation import validate_in_child
+from ..validation import ValidationsBusy, validate_in_child, validation_slot
 
 log = logging.getLogger("shsas.api")
 router = APIRouter()
 
-#: Stored input names by detected format; the pipeline detects the format from the contents.
-INPUT_NAMES = {"shsas": "survey.h5", "svss": "survey.hdf5", "airsas-csv": "survey.zip",
-               "airsas-pickle": "survey.pkl"}
+#: Every upload is stored as a canonical file: a canonical upload as it came, any other format
+#: (every format `shsas convert` reads) as the canonical file its validation converted it to.
+INPUT_NAME = "survey.h5"
+#: Seconds a client is told to wait (Retry-After) when every validation slot stayed busy.
+VALIDATIONS_BUSY_RETRY_S = 10
 
 
 def spec_error(exc: pydantic.ValidationError) -> str:
@@ -60,7 +63,9 @@ def spec_error(exc: pydantic.ValidationError) -> str:
               "schema": {
                   "type": "object", "required": ["survey"], "additionalProperties": False, "properties": {
                       "survey": {"type": "string", "format": "binary",
-                                 "description": "canonical shsas HDF5, AirSAS zip or SVSS HDF5"},
+                                 "description": "canonical shsas HDF5, or any format `shsas convert` reads: "
+                                                "a zip of an AirSAS scan, deconvolved-ping or SVSS track "
+                                                "folder, or an AirSAS pickle"},
                       "spec": {"$ref": "#/components/schemas/ReconstructionSpec",
                                "description": "the ReconstructionSpec as JSON (defaults if absent)"},
                   }},
@@ -112,16 +117,27 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
                 return _accepted(prior, request)
         await hold_slot(held, store, who, settings)
         upload_path = up.path
-        checked = await to_thread.run_sync(lambda: validate_in_child(
-            upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
-            display_name=up.display_name, spec=spec_json, worker_memory_bytes=settings.worker_memory_bytes))
-        check_spec_cost(spec, settings, box_of(checked["summary"]))  # the automatic grid, now known
-        check_cpu_time(spec, settings, checked["summary"])
+        try:
+            async with validation_slot(settings.data_dir / "validation-slots", settings.max_concurrent_validations,
+                                       settings.validate_wait_s):
+                checked = await to_thread.run_sync(lambda: validate_in_child(
+                    upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
+                    display_name=up.display_name, spec=spec_json, worker_memory_bytes=settings.worker_memory_bytes,
+                    max_ground_truth_elements=settings.max_ground_truth_elements,
+                    max_extras_bytes=settings.max_extras_bytes))
+        except ValidationsBusy:
+            raise HTTPException(503, f"survey: all {settings.max_concurrent_validations} validation slots stayed "
+                                     f"busy for {settings.validate_wait_s:g} s (SHSAS_MAX_CONCURRENT_VALIDATIONS); "
+                                     "nothing was queued (fix: resubmit after Retry-After seconds)",
+                                headers={"Retry-After": str(VALIDATIONS_BUSY_RETRY_S)}) from None
+        check_spec_cost(spec, settings, box_of(checked.summary))  # the automatic grid, now known
+        check_cpu_time(spec, settings, checked.summary)
         job_id = uuid.uuid4().hex
         in_dir, _ = job_paths(settings, job_id)
         in_dir.mkdir(parents=True)
-        input_name = INPUT_NAMES.get(checked["format"], "survey.bin")
-        up.path.replace(in_dir / input_name)
+        input_name = INPUT_NAME
+        checked.input_path.replace(in_dir / input_name)
+        checked.view_dir.replace(in_dir.parent / VIEW_FOLDER)
         try:
             job, created = await to_thread.run_sync(lambda: store.create_job(
                 owner=who, spec=spec_json, input_digest=up.sha256, input_name=input_name,
@@ -145,7 +161,7 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
             raise UploadError(503, msg) from None
         log.info("job %s submitted", job.id, extra={
             "job_id": job.id, "key_id": who, "queue": job.queue, "methods": spec.methods,
-            "grid": spec.grid, "iters": spec.iters, "input_bytes": up.size, "format": checked["format"],
+            "grid": spec.grid, "iters": spec.iters, "input_bytes": up.size, "format": checked.format,
             "client_filename": up.display_name})
         return _accepted(job, request)
 

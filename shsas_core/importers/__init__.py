@@ -2,8 +2,10 @@
 
 ``load_survey(path, fmt="auto")`` detects the format from the contents (not the extension):
 canonical HDF5 (``format`` attribute), SVSS HDF5 (``DataReal``/``Position`` datasets, or a
-folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder or .zip, an
-AirSAS processed pickle, or a folder of AirSAS pulse-deconvolved pings (``weights_trans_*.npy``). Layouts and conversions: docs/formats.md.
+folder of ``unpack float - LF - down - N.hdf5`` files), an AirSAS CSV folder, an AirSAS
+processed pickle, or a folder of AirSAS pulse-deconvolved pings (``weights_trans_*.npy``).
+A .zip of any of the three folder formats is detected by its member names and read member by
+member, never extracted (:mod:`.tree`). Layouts and conversions: docs/formats.md.
 """
 
 from __future__ import annotations
@@ -40,6 +42,19 @@ def _detect_dir(p: Path) -> str:
         "(fix: give the scan or track folder itself; layouts in docs/formats.md)")
 
 
+def _detect_zip(p: Path) -> str:
+    """The format of a zipped folder, from its member names (read from the central directory)."""
+    from .tree import open_tree
+
+    with open_tree(p) as top:
+        names = [q.name for q in top.rglob("*")]
+    if any(_SVSS_NAME.match(n) for n in names):
+        return "svss"
+    if any(_DECONVOLVED_NAME.match(n) for n in names):
+        return "airsas-deconvolved"
+    return "airsas-csv"  # its reader names what is missing
+
+
 def detect_format(path: str | os.PathLike) -> str:
     """Return one of :data:`FORMATS` for ``path`` or raise UnsupportedFormatError."""
     p = Path(path)
@@ -64,7 +79,7 @@ def detect_format(path: str | os.PathLike) -> str:
             return "shsas"  # let the canonical reader report the corruption precisely
         return "shsas"
     if head.startswith((b"PK\x03\x04", b"PK\x05\x06")):
-        return "airsas-csv"
+        return _detect_zip(p)
     if head[:1] == b"\x80" or p.suffix.lower() in (".pkl", ".pik", ".pickle"):
         return "airsas-pickle"
     raise UnsupportedFormatError(

@@ -22,11 +22,11 @@ dropping ``ceil(gd)`` leading samples and setting ``t0 = (ceil(gd) − gd)/fs``.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
 import re
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,7 +36,8 @@ import numpy as np
 from ..errors import SurveyValidationError
 from ..progress import ProgressFn, no_progress
 from ..survey import PulseParams, SceneBox, Survey, SurveyMeta, check_sizes, default_pulse
-from . import safe_pickle, safe_zip
+from . import safe_pickle
+from .tree import Node, open_tree
 
 #: Parameter files are small; refuse anything absurd before reading it.
 MAX_PARAM_FILE_BYTES = 64 * 1024**2
@@ -50,7 +51,7 @@ _NUM = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 class _Scan:
     """The metadata of one scan folder (before waveform selection)."""
 
-    folder: Path
+    folder: Node
     sys: dict[str, float]
     flight: np.ndarray  # (M,) int
     angle_deg: np.ndarray  # (M,)
@@ -63,17 +64,11 @@ class _Scan:
 # small readers
 
 
-def _read_text(path: Path, limit: int = MAX_PARAM_FILE_BYTES) -> str:
-    size = path.stat().st_size
-    if size > limit:
-        raise SurveyValidationError(path.name, f"is {size} bytes, over the limit of {limit}")
-    try:
-        return path.read_text(encoding="utf-8-sig", errors="strict")
-    except UnicodeDecodeError:
-        raise SurveyValidationError(path.name, "is not a UTF-8/ASCII text file") from None
+def _read_text(path: Node, limit: int = MAX_PARAM_FILE_BYTES) -> str:
+    return path.read_text(limit)
 
 
-def _rows(path: Path) -> list[list[str]]:
+def _rows(path: Node) -> list[list[str]]:
     return [[c.strip() for c in row] for row in csv.reader(_read_text(path).splitlines())]
 
 
@@ -81,7 +76,7 @@ def _is_num(s: str) -> bool:
     return bool(_NUM.match(s.strip()))
 
 
-def _need(folder: Path, name: str) -> Path:
+def _need(folder: Node, name: str) -> Node:
     p = folder / name
     if not p.is_file():
         raise SurveyValidationError(name, f"is missing from the scan folder '{folder.name}'",
@@ -94,7 +89,7 @@ _SYS_FIELDS = ("speaker x", "speaker y", "speaker z", "center x", "center y", "c
                "group delay", "fs")
 
 
-def read_sys_params(path: Path) -> dict[str, float]:
+def read_sys_params(path: Node) -> dict[str, float]:
     """``SysParams.csv`` as {lower-case name: value}; required names are checked by the caller."""
     out: dict[str, float] = {}
     for i, row in enumerate(_rows(path), start=1):
@@ -130,7 +125,7 @@ def _sys_scalar(sys: dict[str, float], name: str) -> float:
     return sys[name.lower()]
 
 
-def read_coordinates(path: Path) -> tuple[np.ndarray, ...]:
+def read_coordinates(path: Node) -> tuple[np.ndarray, ...]:
     """``Coordinates.csv`` -> (flight, angle_deg, height_mm, temp_c, waveform), each (M,)."""
     rows = [r for r in _rows(path) if any(r)]
     if rows and not _is_num(rows[0][0]):
@@ -192,7 +187,7 @@ def parse_waveform_params(text: str, row: int) -> PulseParams:
     return PulseParams(f_start=f0, f_stop=f1, duration=dur, window="tukey", window_param=ratio)
 
 
-def read_waveform_column(path: Path, column: int) -> np.ndarray:
+def read_waveform_column(path: Node, column: int) -> np.ndarray:
     """Column ``column`` of ``Waveforms.csv`` (empty cells of shorter columns skipped), (P,)."""
     vals: list[float] = []
     for i, row in enumerate(_rows(path), start=1):
@@ -211,7 +206,7 @@ def read_waveform_column(path: Path, column: int) -> np.ndarray:
     return w
 
 
-def read_flight(path: Path) -> np.ndarray:
+def read_flight(path: Node) -> np.ndarray:
     """One ``Flight-NNNNNN.csv`` (first column; an optional text header) -> (T,) float64."""
     text = _read_text(path, MAX_FLIGHT_FILE_BYTES)
     cells = [ln.split(",", 1)[0].strip() for ln in text.splitlines() if ln.strip()]
@@ -229,7 +224,7 @@ def read_flight(path: Path) -> np.ndarray:
     return out
 
 
-def _flight_path(folder: Path, flight: int) -> Path:
+def _flight_path(folder: Node, flight: int) -> Node:
     p = folder / f"Flight-{flight:06d}.csv"
     if not p.is_file():
         raise SurveyValidationError(p.name, f"is missing from the scan folder '{folder.name}' "
@@ -237,7 +232,7 @@ def _flight_path(folder: Path, flight: int) -> Path:
     return p
 
 
-def _read_scan(folder: Path) -> _Scan:
+def _read_scan(folder: Node) -> _Scan:
     for name in _REQUIRED_FILES:
         _need(folder, name)
     sys = read_sys_params(folder / "SysParams.csv")
@@ -249,15 +244,15 @@ def _read_scan(folder: Path) -> _Scan:
 # folder / zip resolution
 
 
-def _find_scan_root(top: Path) -> Path:
+def _find_scan_root(top: Node) -> Node:
     """The shallowest folder under ``top`` holding Coordinates.csv (not a background scan)."""
     if (top / "Coordinates.csv").is_file() or (top / "SysParams.csv").is_file():
         return top
     cands = sorted((p.parent for p in top.rglob("Coordinates.csv")
-                    if "background" not in [q.lower() for q in p.relative_to(top).parts[:-1]]),
+                    if "background" not in [q.lower() for q in p.relative_parts(top)[:-1]]),
                    key=lambda p: len(p.parts))
     if not cands:
-        if any(top.rglob("Flight-*.csv")):
+        if top.rglob("Flight-*.csv"):
             raise SurveyValidationError("Coordinates.csv", f"is missing from the scan folder '{top.name}'")
         raise SurveyValidationError("file", f"'{top.name}' holds no AirSAS scan (no Coordinates.csv found)")
     same = [c for c in cands if len(c.parts) == len(cands[0].parts)]
@@ -267,35 +262,11 @@ def _find_scan_root(top: Path) -> Path:
     return cands[0]
 
 
-def _background_folder(root: Path) -> Path | None:
-    for p in sorted(root.iterdir()):
+def _background_folder(root: Node) -> Node | None:
+    for p in root.iterdir():
         if p.is_dir() and p.name.lower() == "background":
             return p
     return None
-
-
-class _Opened:
-    """A scan folder, extracted from a zip into a temporary folder when needed."""
-
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
-        self._tmp: tempfile.TemporaryDirectory | None = None
-
-    def __enter__(self) -> Path:
-        if not self.path.exists():
-            raise SurveyValidationError("file", f"'{self.path}' does not exist")
-        if self.path.is_dir():
-            return self.path
-        self._tmp = tempfile.TemporaryDirectory(prefix="shsas-airsas-")
-        try:
-            return safe_zip.safe_extract(self.path, self._tmp.name)
-        except BaseException:
-            self._tmp.cleanup()  # __exit__ is not called when __enter__ raises
-            raise
-
-    def __exit__(self, *exc: Any) -> None:
-        if self._tmp is not None:
-            self._tmp.cleanup()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -332,25 +303,20 @@ def read_airsas_csv(
     """
     if pulse not in ("file", "analytic"):
         raise SurveyValidationError("pulse", f"must be 'file' or 'analytic', got {pulse!r}")
-    with _Opened(path) as top:
+    # A zip is read member by member (only the files the scan needs), never extracted.
+    with open_tree(path) as top, contextlib.ExitStack() as stack:
         root = _find_scan_root(top)
         scan = _read_scan(root)
-        bg_folder: Path | None = None
-        bg_ctx: _Opened | None = None
+        bg_folder: Node | None = None
         if background is True:
             bg_folder = _background_folder(root)
         elif background not in (None, False):
-            bg_ctx = _Opened(background)  # type: ignore[arg-type]
-            bg_folder = _find_scan_root(bg_ctx.__enter__())
-        try:
-            return _build(scan, bg_folder, waveform, mic, pulse, scene_box, load_samples, progress,
-                          source=Path(path).name)
-        finally:
-            if bg_ctx is not None:
-                bg_ctx.__exit__(None, None, None)
+            bg_folder = _find_scan_root(stack.enter_context(open_tree(background)))  # type: ignore[arg-type]
+        return _build(scan, bg_folder, waveform, mic, pulse, scene_box, load_samples, progress,
+                      source=Path(path).name)
 
 
-def _build(scan: _Scan, bg_folder: Path | None, waveform: int | None, mic: int, pulse: str,
+def _build(scan: _Scan, bg_folder: Node | None, waveform: int | None, mic: int, pulse: str,
            scene_box: SceneBox | None, load_samples: bool, progress: ProgressFn, source: str) -> Survey:
     sys = scan.sys
     speaker = _sys_vector(sys, "Speaker")
@@ -437,7 +403,7 @@ def _build(scan: _Scan, bg_folder: Path | None, waveform: int | None, mic: int, 
                   shape=(sel.size, t_raw - k0))
 
 
-def _background_for(folder: Path, scan: _Scan, sel: np.ndarray, wf: int, fs: float) -> list[Path]:
+def _background_for(folder: Node, scan: _Scan, sel: np.ndarray, wf: int, fs: float) -> list[Node]:
     """Flight files of the background scan matched ping by ping to the selected pings."""
     bg = _read_scan(folder)
     bsel = np.flatnonzero(bg.waveform == wf)

@@ -21,6 +21,7 @@ Conversions (the authors' ``airsas/utils.py`` and backprojection, as the data RE
 
 from __future__ import annotations
 
+import io
 import itertools
 import os
 import re
@@ -34,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from ..errors import SurveyValidationError, pydantic_fix
 from ..progress import ProgressFn, no_progress
 from ..survey import PulseParams, SceneBox, Survey, check_sizes, default_pulse, parse_meta
+from .tree import Node, open_tree, shallowest
 
 #: ``weights_trans_{first ping}_{last ping}.npy``: one file per height level.
 FILE_NAME = re.compile(r"^weights_trans_(\d+)_(\d+)\.npy$")
@@ -93,7 +95,12 @@ def load_geometry(path: str | os.PathLike | None) -> DeconvolvedGeometry:
                                                  "docs/formats.md, 'AirSAS deconvolved pings'")) from None
 
 
-def ping_files(folder: Path) -> list[Path]:
+def holds_pings(folder: Node) -> bool:
+    """True when ``folder`` holds ping files (``weights_trans_*_*.npy``)."""
+    return any(FILE_NAME.match(q.name) for q in folder.iterdir())
+
+
+def ping_files(folder: Node) -> list[Node]:
     """The folder's ping files in ping order; they must tile 0..N−1 with equal-sized levels."""
     found = []
     for q in folder.iterdir():
@@ -144,14 +151,17 @@ def range_window(geo: DeconvolvedGeometry, tx: np.ndarray, rx: np.ndarray) -> tu
     return lo, hi
 
 
-def _read_level(path: Path, per_level: int | None) -> np.ndarray:
-    if path.stat().st_size > MAX_FILE_BYTES:
-        raise SurveyValidationError(path.name, f"is over the limit of {MAX_FILE_BYTES} bytes")
+def _load_npy(path: Node) -> np.ndarray:
+    """A plain .npy array from a file or zip member (at most :data:`MAX_FILE_BYTES`)."""
     try:
-        a = np.load(path, allow_pickle=False)
-    except ValueError as exc:
+        return np.load(io.BytesIO(path.read_bytes(MAX_FILE_BYTES)), allow_pickle=False)
+    except (ValueError, EOFError) as exc:
         raise SurveyValidationError(path.name, f"is not a plain .npy array ({exc})"[:200],
                                     "give the deconvolved ping files unchanged") from None
+
+
+def _read_level(path: Node, per_level: int | None) -> np.ndarray:
+    a = _load_npy(path)
     if a.ndim != 2 or not np.issubdtype(a.dtype, np.floating) or (per_level and a.shape[0] != per_level):
         raise SurveyValidationError(path.name, f"holds {a.dtype} {a.shape}; expected real ({per_level}, T)",
                                     "give the deconvolved ping files unchanged")
@@ -167,12 +177,18 @@ def read_deconvolved_folder(path: str | os.PathLike, *, geometry: DeconvolvedGeo
         geometry: a :class:`DeconvolvedGeometry`, a JSON file of its fields, or None (defaults).
         scene_box: overrides ``geometry.scene_box`` (the box the range window was cut for).
     """
-    from ..signal import analytic_signal
 
-    folder = Path(path)
     geo = geometry if isinstance(geometry, DeconvolvedGeometry) else load_geometry(geometry)
     if scene_box is not None:
         geo = geo.model_copy(update={"scene_box": scene_box})
+    # A zip of the folder is read member by member, never extracted.
+    with open_tree(path) as top:
+        return _read(shallowest(top, holds_pings), geo, load_samples, progress)
+
+
+def _read(folder: Node, geo: DeconvolvedGeometry, load_samples: bool, progress: ProgressFn) -> Survey:
+    from ..signal import analytic_signal
+
     files = ping_files(folder)
     first = _read_level(files[0], None)
     per_level, t = first.shape
@@ -198,7 +214,7 @@ def read_deconvolved_folder(path: str | os.PathLike, *, geometry: DeconvolvedGeo
                        "scene_box": geo.scene_box.model_dump(), "attrs": attrs})
     wf = folder / WAVEFORM_FILE
     if wf.is_file():
-        pulse = np.load(wf, allow_pickle=False).astype(np.float64)[:PULSE_SAMPLES]
+        pulse = _load_npy(wf).astype(np.float64)[:PULSE_SAMPLES]
         meta = meta.model_copy(update={"attrs": {**attrs, "pulse_file": WAVEFORM_FILE}})
     else:
         pulse = default_pulse(meta)

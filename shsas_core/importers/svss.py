@@ -36,6 +36,8 @@ import numpy as np
 from ..errors import SurveyValidationError, UnsafeFileError
 from ..io import check_hdf5_safety
 from ..survey import PulseParams, SceneBox, Survey, check_sizes, parse_meta
+from .safe_zip import is_zip
+from .tree import Node, open_tree, shallowest
 
 FS_HZ = 125e3
 CARRIER_HZ = 27.5e3
@@ -45,6 +47,8 @@ DEFAULT_TEMPERATURE_F = 55.0
 #: LFM 35 -> 20 kHz, 255 µs, Taylor window (the reference code uses nbar 5, -40 dB).
 PULSE = PulseParams(f_start=35e3, f_stop=20e3, duration=255e-6, window="taylor", window_param=40.0)
 MAX_XML_BYTES = 32 * 1024**2
+#: An HDF5 file of a zipped track is copied out of the zip to be read; at most this large.
+MAX_HDF5_MEMBER_BYTES = 8 * 1024**3
 
 _UNPACK = re.compile(r"^unpack float - LF - down - (\d+)\.hdf5$")
 _MOTION = re.compile(r"^motion solution - LF - down - (\d+)\.hdf5$")
@@ -69,20 +73,29 @@ def attitude_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.
     ], -2)
 
 
-def _resolve(path: Path, image_number: int | None) -> tuple[Path, int]:
-    """(track folder, image number) for a folder, an unpack file or a motion-solution file."""
-    if path.is_dir():
-        nums = sorted(int(m.group(1)) for p in path.iterdir() if (m := _UNPACK.match(p.name)))
-        if image_number is not None:
-            if image_number not in nums:
-                raise SurveyValidationError("image_number", f"{image_number} has no 'unpack float - LF - down - "
-                                            f"{image_number}.hdf5' in '{path.name}' (found {nums})")
-            return path, image_number
-        if not nums:
-            raise SurveyValidationError("file", f"'{path.name}' holds no 'unpack float - LF - down - N.hdf5'")
-        if len(nums) > 1:
-            raise SurveyValidationError("image_number", f"'{path.name}' holds images {nums}; choose one")
-        return path, nums[0]
+def _holds_image(folder: Node) -> bool:
+    return any(_UNPACK.match(p.name) for p in folder.iterdir())
+
+
+def _image_of(folder: Node, image_number: int | None) -> int:
+    """The image number N to read from a track folder (the only one, or ``image_number``)."""
+    nums = sorted(int(m.group(1)) for p in folder.iterdir() if (m := _UNPACK.match(p.name)))
+    if image_number is not None:
+        if image_number not in nums:
+            raise SurveyValidationError("image_number", f"{image_number} has no 'unpack float - LF - down - "
+                                        f"{image_number}.hdf5' in '{folder.name}' (found {nums})")
+        return image_number
+    if not nums:
+        raise SurveyValidationError("file", f"'{folder.name}' holds no 'unpack float - LF - down - N.hdf5'")
+    if len(nums) > 1:
+        raise SurveyValidationError("image_number", f"'{folder.name}' holds images {nums}; choose one")
+    return nums[0]
+
+
+def _track_of(path: Path) -> tuple[Path, int | None]:
+    """(track folder or zip, image number when ``path`` names one file of the track)."""
+    if path.is_dir() or is_zip(path):
+        return path, None
     m = _UNPACK.match(path.name) or _MOTION.match(path.name)
     if not m:
         raise SurveyValidationError(
@@ -92,8 +105,6 @@ def _resolve(path: Path, image_number: int | None) -> tuple[Path, int]:
 
 
 def _open(path: Path) -> h5py.File:
-    if not path.is_file():
-        raise SurveyValidationError(path.name, "is missing (the SVSS track needs the unpack and motion files)")
     if not h5py.is_hdf5(path):
         raise SurveyValidationError(path.name, "is not an HDF5 file")
     try:
@@ -124,15 +135,12 @@ def _floats(text: str, tag: str) -> np.ndarray:
         raise SurveyValidationError(f"xml: <{tag}>", "holds a value that is not a number") from None
 
 
-def read_track_xml(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def read_track_xml(path: Node) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(tx_body (T,3), rx_body (R,3), kernel (K,) complex or None) from the track XML.
 
     Parsed with regular expressions on the text: no entity expansion, no external references.
     """
-    size = path.stat().st_size
-    if size > MAX_XML_BYTES:
-        raise SurveyValidationError(path.name, f"is {size} bytes, over the limit of {MAX_XML_BYTES}")
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = path.read_bytes(MAX_XML_BYTES).decode("utf-8", errors="replace")
     out = []
     for tag in ("tx", "rx"):
         m = re.search(rf"<{tag}\b[^>]*>(.*?)</{tag}>", text, re.S)
@@ -159,8 +167,8 @@ def read_track_xml(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | Non
     return out[0], out[1], kernel
 
 
-def _track_xml(folder: Path) -> Path:
-    xmls = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".xml" and p.is_file())
+def _track_xml(folder: Node) -> Node:
+    xmls = [p for p in folder.iterdir() if p.suffix.lower() == ".xml" and p.is_file()]
     named = [p for p in xmls if p.stem == folder.name]
     if named:
         return named[0]
@@ -170,11 +178,11 @@ def _track_xml(folder: Path) -> Path:
     return xmls[0]
 
 
-def _temperature_from_table(folder: Path) -> float | None:
-    for p in sorted(folder.glob("*.csv")):
-        if p.stat().st_size > MAX_XML_BYTES:
+def _temperature_from_table(folder: Node) -> float | None:
+    for p in folder.iterdir():
+        if p.suffix != ".csv" or not p.is_file() or p.size() > MAX_XML_BYTES:
             continue
-        rows = list(csv.reader(p.read_text(encoding="utf-8", errors="replace").splitlines()))
+        rows = list(csv.reader(p.read_bytes(MAX_XML_BYTES).decode("utf-8", errors="replace").splitlines()))
         for row in rows[1:]:
             if len(row) >= 2 and row[0].strip() == folder.name:
                 try:
@@ -206,7 +214,7 @@ def read_svss(
     """Import one SVSS track image as a baseband :class:`Survey`.
 
     Args:
-        path: track folder, unpack file or motion-solution file.
+        path: track folder (or a .zip of it), unpack file or motion-solution file.
         image_number: which image N when the folder holds several.
         temperature_f: water temperature in °F; default from the sound-speed table, else 55 °F.
         scene_box: default x over the sensor track, y = mean ± 1 m, z from 2 m to 0.5 m below
@@ -217,13 +225,30 @@ def read_svss(
         Survey with N = P·R pings (one per TX firing and receiver), samples (N, T) complex64
         baseband, t0 = 0, tx/rx and tx_dir/rx_dir (N, 3).
     """
-    folder, num = _resolve(Path(path), image_number)
-    unpack = folder / f"unpack float - LF - down - {num}.hdf5"
-    motion = folder / f"motion solution - LF - down - {num}.hdf5"
+    where, named = _track_of(Path(path))
+    # A zip of the track is read member by member; its two HDF5 files are copied out one at a
+    # time (the HDF5 library opens files by name), into a temporary folder under TMPDIR.
+    with open_tree(where) as top:
+        folder = top if named is not None else shallowest(top, _holds_image)
+        num = named if named is not None else _image_of(folder, image_number)
+        return _read(folder, num, temperature_f, scene_box, load_samples)
+
+
+def _member(folder: Node, name: str) -> Node:
+    node = folder / name
+    if not node.is_file():
+        raise SurveyValidationError(name, "is missing (the SVSS track needs the unpack and motion files)")
+    return node
+
+
+def _read(folder: Node, num: int, temperature_f: float | None, scene_box: SceneBox | None,
+          load_samples: bool) -> Survey:
+    unpack = _member(folder, f"unpack float - LF - down - {num}.hdf5")
+    motion = _member(folder, f"motion solution - LF - down - {num}.hdf5")
     tx_body, rx_body, kernel = read_track_xml(_track_xml(folder))
     n_tx, n_rx = len(tx_body), len(rx_body)
 
-    with _open(unpack) as f:
+    with unpack.local_file(MAX_HDF5_MEMBER_BYTES) as local, _open(local) as f:
         re_ds, im_ds = _ds(f, "DataReal", unpack.name), _ds(f, "DataImag", unpack.name)
         for name, ds in (("DataReal", re_ds), ("DataImag", im_ds)):
             if ds.ndim != 2 or not np.issubdtype(ds.dtype, np.floating):
@@ -245,7 +270,7 @@ def read_svss(
             samples.real = re_ds[()]
             samples.imag = im_ds[()]
 
-    with _open(motion) as f:
+    with motion.local_file(MAX_HDF5_MEMBER_BYTES) as local, _open(local) as f:
         pos_ds = _ds(f, "Position", motion.name)
         att = [_ds(f, f"Attitude/{k}", motion.name) for k in ("Roll", "Pitch", "Yaw")]
         if pos_ds.shape[0] < n_ping:

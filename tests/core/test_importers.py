@@ -260,46 +260,87 @@ def test_svss_missing_motion_file_named(tmp_path):
 # --------------------------------------------------------------------------- zip safety
 
 
-def test_safe_zip_size_cap_counts_real_bytes(tmp_path):
-    from shsas_core.importers.safe_zip import safe_extract
+def _zip_scan(folder, z, extra=()):
+    """Zip ``folder``'s files under ``scan/``, plus (name, bytes) ``extra`` members."""
+    with zipfile.ZipFile(z, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for p in sorted(folder.iterdir()):
+            if p.is_file():
+                zf.write(p, f"scan/{p.name}")
+        for name, data in extra:
+            zf.writestr(name, data)
+    return z
+
+
+def test_safe_zip_total_size_budget_from_the_central_directory(tmp_path):
+    from shsas_core.importers.safe_zip import SafeZip
 
     z = tmp_path / "big.zip"
     with zipfile.ZipFile(z, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         zf.writestr("scan/Flight-000001.csv", "0.0\n" * 10_000)  # 40 kB, compresses to ~100 B
-    dest = tmp_path / "out"
-    dest.mkdir()
     with pytest.raises(UnsafeFileError, match="zip bomb"):
-        safe_extract(z, dest, max_bytes=1_000)
-    assert safe_extract(z, dest, max_bytes=100_000) == dest.resolve()
-    assert (dest / "scan" / "Flight-000001.csv").stat().st_size == 40_000
+        SafeZip(z, max_bytes=1_000)
+    archive = SafeZip(z, max_bytes=100_000)
+    assert archive.read(("scan", "Flight-000001.csv"), 40_000) == b"0.0\n" * 10_000
+    with pytest.raises(SurveyValidationError, match="over the limit of 39999"):
+        archive.read(("scan", "Flight-000001.csv"), 39_999)
+    archive.close()
+
+
+def test_safe_zip_member_count_read_before_the_directory(tmp_path):
+    from shsas_core.importers.safe_zip import SafeZip, declared_entries
+
+    z = tmp_path / "many.zip"
+    with zipfile.ZipFile(z, "w") as zf:
+        for i in range(50):
+            zf.writestr(f"scan/f{i}.csv", "1\n")
+    assert declared_entries(z) == 50
+    with pytest.raises(UnsafeFileError, match="50 members, over the limit of 10"):
+        SafeZip(z, max_members=10)
+    (tmp_path / "cut.zip").write_bytes(z.read_bytes()[:-30])  # end record cut off
+    with pytest.raises(SurveyValidationError, match="end-of-central-directory"):
+        declared_entries(tmp_path / "cut.zip")
 
 
 @pytest.mark.parametrize("name", ["/etc/evil.csv", "a/../../evil.csv", "C:/evil.csv", "..\\evil.csv"])
 def test_safe_zip_refuses_escaping_names(tmp_path, name):
-    from shsas_core.importers.safe_zip import safe_extract
+    from shsas_core.importers.safe_zip import SafeZip
 
     z = tmp_path / "t.zip"
     with zipfile.ZipFile(z, "w") as zf:
         zf.writestr("ok.csv", "1\n")
         zf.writestr(name, "x")
-    dest = tmp_path / "out"
-    dest.mkdir()
     with pytest.raises(UnsafeFileError, match="path traversal"):
-        safe_extract(z, dest)
-    assert list(dest.iterdir()) == []  # names are checked before anything is written
+        SafeZip(z)
 
 
 def test_safe_zip_refuses_symlinks(tmp_path):
-    from shsas_core.importers.safe_zip import safe_extract
+    from shsas_core.importers.safe_zip import SafeZip
 
     z = tmp_path / "t.zip"
     info = zipfile.ZipInfo("scan/Coordinates.csv")
     info.external_attr = (0o120777 << 16)  # S_IFLNK
     with zipfile.ZipFile(z, "w") as zf:
         zf.writestr(info, "/etc/passwd")
-    (tmp_path / "out").mkdir()
     with pytest.raises(UnsafeFileError, match="symbolic link"):
-        safe_extract(z, tmp_path / "out")
+        SafeZip(z)
+
+
+def test_zip_reads_only_the_members_the_scan_needs(tmp_path):
+    """A member the scan does not name is never decompressed: here one whose data is corrupt
+    (reading it would fail its CRC check), beside a valid scan, loads fine and equals the folder."""
+    folder = AirSASScan().write(tmp_path / "scan")
+    z = _zip_scan(folder, tmp_path / "scan.zip", extra=[("scan/notes/junk.bin", b"\0" * 1_000_000)])
+    raw = bytearray(z.read_bytes())
+    with zipfile.ZipFile(z) as zf:
+        info = zf.getinfo("scan/notes/junk.bin")
+    body = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)
+    raw[body:body + 50] = b"\xff" * 50
+    z.write_bytes(bytes(raw))
+    with zipfile.ZipFile(z) as zf, pytest.raises(Exception):  # noqa: B017 - zipfile raises zlib.error or BadZipFile
+        zf.read("scan/notes/junk.bin")
+    from_zip, from_folder = load_survey(z), load_survey(folder)
+    np.testing.assert_array_equal(from_zip.samples, from_folder.samples)
+    np.testing.assert_array_equal(from_zip.tx, from_folder.tx)
 
 
 def test_background_at_other_positions_is_refused(tmp_path):
@@ -310,26 +351,51 @@ def test_background_at_other_positions_is_refused(tmp_path):
         read_airsas_csv(folder)
 
 
-def test_zip_temp_folder_removed_after_success_and_failure(tmp_path):
+def test_zip_is_never_extracted(tmp_path, monkeypatch):
+    """Reading an AirSAS zip (all samples, then the header only, then a refused one) writes
+    nothing under TMPDIR."""
     import tempfile
-    from pathlib import Path
 
-    def leftovers():
-        return set(Path(tempfile.gettempdir()).glob("shsas-airsas-*"))
-
-    before = leftovers()
-    folder = AirSASScan().write(tmp_path / "scan")
-    good = tmp_path / "good.zip"
-    with zipfile.ZipFile(good, "w") as zf:
-        for p in folder.iterdir():
-            zf.write(p, p.name)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    good = _zip_scan(AirSASScan().write(tmp_path / "scan"), tmp_path / "good.zip")
     assert load_survey(good).num_pings == 4
+    assert load_survey(good, load_samples=False).shape == (4, 1200 - 13)
     bad = tmp_path / "bad.zip"
     with zipfile.ZipFile(bad, "w") as zf:
         zf.writestr("../x.csv", "1")
     with pytest.raises(UnsafeFileError):
         load_survey(bad)
-    assert leftovers() == before
+    assert list(tmp.iterdir()) == []
+
+
+def test_zipped_deconvolved_and_svss_folders_read_like_the_folders(tmp_path):
+    """The two other folder formats read from a zip equal the folder read (format detected
+    from the member names)."""
+    track = SVSSTrack().write(tmp_path / "svss")
+    z = tmp_path / "track.zip"
+    with zipfile.ZipFile(z, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for p in track.iterdir():
+            zf.write(p, f"{track.name}/{p.name}")
+    assert detect_format(z) == "svss"
+    a, b = load_survey(z), load_survey(track)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    np.testing.assert_array_equal(a.tx, b.tx)
+    assert a.meta == b.meta
+    dec = tmp_path / "dec"
+    dec.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):
+        np.save(dec / f"weights_trans_{4 * k}_{4 * k + 3}.npy", rng.standard_normal((4, 608)).astype(np.float16))
+    z = tmp_path / "dec.zip"
+    with zipfile.ZipFile(z, "w") as zf:
+        for p in dec.iterdir():
+            zf.write(p, f"dec/{p.name}")
+    assert detect_format(z) == "airsas-deconvolved"
+    a, b = load_survey(z), load_survey(dec)
+    np.testing.assert_array_equal(a.samples, b.samples)
+    assert a.shape == (8, 608) and a.meta.fs == b.meta.fs
 
 
 def test_progress_reaches_one_for_csv_import(tmp_path):

@@ -51,6 +51,27 @@ def test_estimate_grows_with_the_job_and_the_default_budget_fits_the_machine(zer
         check_job_memory(header, QUICK, 1 * GiB)
 
 
+def test_estimate_counts_the_ground_truth_mesh_and_loaded_extras(zeros: Path) -> None:
+    """A small survey with a large mesh is not a small job: each vertex and face counts."""
+    import dataclasses
+
+    from shsas_core.memory import GROUND_TRUTH_ELEMENT_BYTES
+
+    header = read_survey(zeros, load_samples=False)
+    verts, faces = np.zeros((3_000_000, 3)), np.zeros((6_000_000, 3), np.int64)
+    meshed = dataclasses.replace(header, gt_vertices=verts, gt_faces=faces)
+    plain = job_memory_bytes(header, QUICK)
+    assert job_memory_bytes(meshed, QUICK) - plain == 9_000_000 * GROUND_TRUTH_ELEMENT_BYTES
+    # at least what the arrays themselves hold
+    assert job_memory_bytes(meshed, QUICK) - plain >= verts.nbytes + faces.nbytes
+    extra = dataclasses.replace(header, extras={"deconvolved": np.zeros((64, 1000), np.float32)})
+    assert job_memory_bytes(extra, QUICK) - plain == 64 * 1000 * 4
+    budget = plain + GiB // 2
+    assert check_job_memory(header, QUICK, budget) == plain
+    with pytest.raises(MemoryBudgetError, match="ground-truth mesh of 9000000 vertices and faces"):
+        check_job_memory(meshed, QUICK, budget)
+
+
 class StopAfter:
     """A should_stop that counts its calls and says stop from call ``n`` on (None: never)."""
 
