@@ -21,7 +21,9 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    a voxel exceeds ``k`` times the local mean with probability ``exp(-π k² / 4)``:
    ``contrast_strong = 3`` is a false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of
    7.4e-3. Ridge voxels at ``contrast_weak`` are kept when their connected piece of ridge holds one
-   at ``contrast_strong`` (hysteresis, as in Canny's edge detector).
+   at ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
+   sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
+   object fills the window) keeps its whole ridge above τ.
 3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.ridge`): one sheet of
    sub-voxel points where the magnitude peaks, instead of the shell's full thickness.
 4. **Normals** across the sheet, each turned toward the sensors that lit its point (``sensors``,
@@ -261,9 +263,13 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     grid = volume.grid
     contrast = local_contrast(norm, grid.spacing, cfg.background_window)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
-    r = ridge(norm, (norm >= tau) & (contrast >= weak), np.asarray(grid.box_min), grid.spacing, cfg.smoothing)
-    r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
-    r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
+    found = ridge(norm, norm >= tau, np.asarray(grid.box_min), grid.spacing, cfg.smoothing)
+    found = dataclasses.replace(found, values=contrast[tuple(found.index.T)])
+    r = connected_to_strong(found.subset(found.values >= weak), grid.shape, cfg.contrast_strong)
+    if len(r) < max(grid.shape):
+        # too coarse or too sparse an image for the contrast test (the object fills the window):
+        # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
+        r = found
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
     if sensors is None or len(np.atleast_2d(sensors)) == 0:
         centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))

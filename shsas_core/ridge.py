@@ -7,7 +7,9 @@ marching-cubes mesh of it is two sheets, inside and outside); the surface is the
 Ridge test (a height ridge, Eberly 1996): smooth the magnitude ``m`` with a Gaussian of
 ``sigma`` voxels, take its gradient ``g`` and Hessian ``H`` by central differences at the
 candidate voxels, and let ``n`` be the eigenvector of ``H``'s most negative eigenvalue ``λ``
-(the direction across the sheet: ``m`` curves down fastest along it). Along ``n`` the magnitude is
+(the direction across the sheet: ``m`` curves down fastest along it; ``|λ|`` must be the Hessian's
+largest, and the whole gradient no steeper than ``|λ| h``, else the voxel sits on the flank of a
+curved shell, where ``m`` also curves down along the sheet). Along ``n`` the magnitude is
 locally ``m(c + t n) ≈ m(c) + (g·n) t + ½ λ t²``, whose peak lies at ``t* = -(g·n) / λ``. The voxel
 at ``c`` is a ridge voxel when ``λ < 0`` and that peak lies in its slab, ``|t*| <= h/2`` (``h`` the
 voxel size along ``n``): exactly one voxel of every column across a sheet passes, whatever the
@@ -25,6 +27,11 @@ import dataclasses
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
+
+#: A ridge voxel's gradient is at most this many voxels of Newton step (``|g| <= STEEP |λ| h``):
+#: on a shell of radius R the flank's ratio is about R (tens of voxels), on the ridge of a sonar
+#: image brightness varies along the surface by a voxel's worth or less (speckle included).
+STEEP = 4.0
 
 
 @dataclasses.dataclass
@@ -119,7 +126,12 @@ def ridge(values: np.ndarray, candidates: np.ndarray, box_min: np.ndarray, spaci
     with np.errstate(divide="ignore", invalid="ignore"):
         t = -slope / lam0
     half = 0.5 * np.sqrt(np.einsum("pi,i->p", n * n, spacing * spacing))  # half the voxel along n
-    keep = (lam0 < 0) & np.isfinite(t) & (np.abs(t) <= half)
+    # on the outer flank of a curved shell the magnitude also curves down along the sheet, where
+    # the gradient has no component; there the gradient is steep across the sheet. On the ridge
+    # the whole gradient is what one voxel of Newton step along n explains (brightness that
+    # varies along the surface changes over many voxels, not one)
+    steep = np.linalg.norm(g, axis=1) > -lam0 * STEEP * 2 * half
+    keep = (lam0 < 0) & (-lam0 >= np.abs(lam[:, 2])) & ~steep & np.isfinite(t) & (np.abs(t) <= half)
     idx, n, t = idx[keep], n[keep], t[keep]
     centres = np.asarray(box_min, dtype=np.float64) + (idx + 0.5) * spacing
     pts = centres + t[:, None] * n
