@@ -32,7 +32,8 @@ def variant(name: str, bunny: str) -> dict:
         return {"guard_samples": 700}
     if name == "large_box":
         lo, hi = load_mesh(bunny).bounds
-        return {"scene_box": SceneBox(min=tuple(lo - [0.08, 0.08, 0.02]), max=tuple(hi + [0.08, 0.08, 0.2]))}
+        grow_lo, grow_hi = np.array([0.08, 0.08, 0.02]), np.array([0.08, 0.08, 0.2])  # much taller too
+        return {"scene_box": SceneBox(min=tuple(lo - grow_lo), max=tuple(hi + grow_hi))}
     if name == "sample_rate":
         return {"fs": 250e3}
     return {"snr_db": 5.0}
