@@ -51,7 +51,7 @@ from .methods import REGISTRY
 from .metrics import GroundTruth, finite_or_none, score_reconstruction
 from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
 from .report import MethodReport, Report, ReportFigures, SignalFit, write_report
-from .spec import ReconstructionSpec
+from .spec import EXTRACTION_FIELDS, ReconstructionSpec
 from .survey import Survey
 from .volume import Grid, Volume
 
@@ -371,8 +371,7 @@ def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn
     checkpoints in ``cache``."""
     spec, survey, s_pd, out, should_stop = job.spec, job.survey, job.s_pd, job.out, job.should_stop
     names = artifact_names(method)
-    extract_key = {"threshold": spec.threshold, "surface": spec.surface, "mesher": spec.mesher,
-                   "version": EXTRACT_VERSION}
+    extract_key = {**{f: getattr(spec, f) for f in EXTRACTION_FIELDS}, "version": EXTRACT_VERSION}
     rep = cache.finished() if all((out / n).exists() for n in names.values()) else None
     if rep is not None:
         vol = read_volume_npy(out / names["volume"])

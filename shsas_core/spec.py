@@ -54,6 +54,9 @@ from .options import (
 from .survey import SceneBox
 from .volume import auto_grid_count
 
+#: The spec fields that only change extraction: a finished job re-extracts from its saved volumes
+#: when they change (shsas_core.job_cache) instead of reconstructing again.
+EXTRACTION_FIELDS: tuple[str, ...] = ("threshold", "surface", "mesher")
 #: The names of shsas_core.methods.REGISTRY (a literal, so the API's schema lists them; a test
 #: checks the two agree).
 Method = Literal["backprojection", "reed", "shsas"]

@@ -1,6 +1,6 @@
 """The default extraction keeps the surface on surveys unlike the simulator's defaults.
 
-Four variants of one small bunny survey, each changing one thing the extraction must not depend
+Four variants of one small bunny survey (10 rings of 90 pings), each changing one thing the extraction must not depend
 on: records that start at transmit and run long (``t0 = 0``, a guard of 700 samples), a scene box
 much larger and taller than the object, another sample rate, and 5 dB SNR. On each the default
 extraction of the backprojection image must keep points on the ground-truth surface (most within
@@ -49,7 +49,7 @@ def test_default_extraction_keeps_the_surface(name: str, shared) -> None:
     bunny = str(shared / "data" / "meshes" / "bunny.obj")
     kw = variant(name, bunny)
     snr = kw.pop("snr_db", 20.0)
-    survey = simulate_shape(bunny, heights=8, angles=90, snr_db=snr, seed=0, **kw)
+    survey = simulate_shape(bunny, heights=10, angles=90, snr_db=snr, seed=0, **kw)
     if name == "long_from_transmit":
         assert np.all(survey.t0 == 0) and survey.num_samples > 900
     box = survey.meta.scene_box
