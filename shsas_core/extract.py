@@ -263,13 +263,14 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     grid = volume.grid
     contrast = local_contrast(norm, grid.spacing, cfg.background_window)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
-    found = ridge(norm, norm >= tau, np.asarray(grid.box_min), grid.spacing, cfg.smoothing)
-    found = dataclasses.replace(found, values=contrast[tuple(found.index.T)])
-    r = connected_to_strong(found.subset(found.values >= weak), grid.shape, cfg.contrast_strong)
+    lo = np.asarray(grid.box_min)
+    r = ridge(norm, (norm >= tau) & (contrast >= weak), lo, grid.spacing, cfg.smoothing)
+    r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
+    r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
     if len(r) < max(grid.shape):
         # too coarse or too sparse an image for the contrast test (the object fills the window):
         # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
-        r = found
+        r = ridge(norm, norm >= tau, lo, grid.spacing, cfg.smoothing)
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
     if sensors is None or len(np.atleast_2d(sensors)) == 0:
         centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))
