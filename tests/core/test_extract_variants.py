@@ -8,9 +8,9 @@ extraction of the backprojection image must keep points on the ground-truth surf
 many as the surface holds (its area over the voxel face), and the default mesh must be at most 3
 pieces holding 95 % of its area, of 0.6-1.3 times the surface's area.
 
-Measured (AMD EPYC, under load): within 1 cm 0.92 / 0.73 / 0.92 / 0.90 (long records, large box,
-sample rate, 5 dB); the large box keeps the image's elevation and azimuth sidelobes above the
-object that the default box cuts off (with 180 pings a ring the share is 0.90).
+The large box is the hardest (0.73 within 1 cm measured): it keeps the image's elevation and
+azimuth sidelobes above the object that the default box cuts off (with 180 pings a ring the
+share is 0.90); docs/decisions/ridge-poisson-extraction.md has the other figures.
 """
 
 from __future__ import annotations
