@@ -6,8 +6,10 @@ cheap enough to detect, that no result should leave the pipeline without being c
 * ``collapsed`` — the volume is (near-)constant: nothing was reconstructed, and after
   normalisation whatever is extracted is rounding noise. Measure: the relative spread
   ``(max - min) / max`` of the magnitude ``|values|`` (0 for an all-zero or constant volume).
-* ``box_filling`` — the extracted cloud fills a large share of the scene box instead of tracing
-  a surface: a fog of density, not an object. Measure: points at or above τ / grid voxels.
+* ``box_filling`` — the volume at or above the extraction level τ fills a large share of the
+  scene box instead of tracing a surface: a fog of density, not an object. Measure: voxels at or
+  above τ / grid voxels (the candidates of the ridge extraction, the whole cloud of a threshold
+  extraction).
 * ``loss_not_falling`` — the fit's data loss (the ToF term, a relative residual: 1.0 = predicting
   zeros) ended where it started. Measure: mean data loss over the last :data:`LOSS_WINDOW` of the
   iterations / mean over the first; limit 0.9, lowered when the per-iteration noise is too large
@@ -100,10 +102,12 @@ def relative_spread(volume: Volume) -> float:
     return (hi - float(m.min())) / hi if hi > 0 else 0.0
 
 
-def filled_share(volume: Volume, n_points: int) -> float:
-    """Share of the grid's voxels that the extracted point cloud (``n_points``, one per voxel
-    at or above τ) occupies, in [0, 1]."""
-    return n_points / max(volume.grid.num_voxels, 1)
+def filled_share(volume: Volume, tau: float) -> float:
+    """Share of the grid's voxels whose normalised magnitude is at or above ``tau``, in [0, 1]."""
+    from .extract import normalize
+
+    norm = normalize(volume)
+    return float(np.count_nonzero(norm >= tau)) / max(norm.size, 1)
 
 
 def loss_ratio(data_loss_history: Sequence[float]) -> tuple[float, float] | None:
@@ -130,13 +134,12 @@ def loss_limit(stderr: float) -> float:
     return max(0.0, min(LOSS_RATIO_LIMIT, 1.0 - LOSS_NOISE_SIGMAS * stderr))
 
 
-def volume_warnings(volume: Volume, tau: float, n_points: int) -> list[ResultWarning]:
+def volume_warnings(volume: Volume, tau: float) -> list[ResultWarning]:
     """Check a method's volume and its extraction.
 
     Args:
         volume: the reconstructed volume (complex or real, ``grid.shape``).
         tau: the normalised iso level used for extraction.
-        n_points: points extracted at ``tau`` (voxels with normalised magnitude >= tau).
     Returns:
         ``collapsed`` or ``box_filling`` warnings (at most one: the cloud of a collapsed volume
         is rounding noise, so its size says nothing more).
@@ -147,11 +150,12 @@ def volume_warnings(volume: Volume, tau: float, n_points: int) -> list[ResultWar
             code="collapsed", measure=spread, limit=COLLAPSE_SPREAD_LIMIT,
             message="the volume is near-constant (relative spread (max-min)/max of |values|): "
                     "nothing was reconstructed")]
-    share = filled_share(volume, n_points)
+    share = filled_share(volume, tau)
     if share >= BOX_FILL_LIMIT:
+        n = round(share * volume.grid.num_voxels)
         return [ResultWarning(
             code="box_filling", measure=share, limit=BOX_FILL_LIMIT,
-            message=f"the extracted cloud fills the scene box ({n_points} of {volume.grid.num_voxels} "
+            message=f"the extracted cloud fills the scene box ({n} of {volume.grid.num_voxels} "
                     f"voxels at or above τ = {tau:.3f}): a fog, not a surface")]
     return []
 

@@ -1,4 +1,4 @@
-"""Turn a reconstructed volume into geometry: a thresholded point cloud and a marching-cubes mesh.
+"""Turn a reconstructed volume into geometry: a surface point cloud and one mesh per object.
 
 Both backprojection images (complex ``|I|``) and neural fields (``|σ_DC|`` sampled on a grid by
 :func:`field_volume`) arrive here as a :class:`~shsas_core.volume.Volume`. The magnitude is
@@ -6,14 +6,34 @@ normalised to [0, 1] by its range (``(m - min) / (max - min)``, :func:`normalize
 level τ means the same for every method: a neural field's non-zero floor (fog) maps to 0 just
 like a backprojection image's near-zero background.
 
-Default τ (``ExtractConfig.rule = "otsu"``): Otsu's threshold of the normalised magnitude over the
-whole grid, clipped to ``[tau_min, tau_max]``. Otsu picks the level that best splits the histogram
-into two classes (empty space vs. scatterers) without assuming how much of the box the object
-fills, which is what differs most between methods: a neural |σ_DC| is near zero almost
-everywhere, a backprojection image carries a broad floor of sidelobes. The clip keeps the level
-away from the floor of a nearly empty volume (Otsu would split noise from noise) and from the
-single brightest voxel. ``rule = "percentile"`` keeps the voxels above a fixed percentile
-instead, and an explicit ``threshold`` overrides both.
+Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
+
+1. **Candidates:** voxels at or above τ. τ is ``threshold`` when given, else Otsu's threshold of
+   the normalised magnitude over the whole grid, clipped to ``[tau_min, tau_max]`` (Otsu splits
+   empty space from scatterers without assuming how much of the box the object fills; the clip
+   keeps it off the floor of a nearly empty volume and off the single brightest voxel).
+2. **Contrast (a CFAR test):** a sonar image's background is not one level: sidelobes and clutter
+   are strong next to the object and fall off away from it, so any one level over the whole box
+   keeps too much near the object in a large box, or too little in a tight one. Each voxel is
+   compared with the mean magnitude in a cube of ``background_window`` metres around it (wider
+   than the point-spread function, so a surface is a small part of the cube; cell-averaging
+   CFAR). For a background of Rayleigh-distributed magnitudes (a sum of many random-phase echoes)
+   a voxel exceeds ``k`` times the local mean with probability ``exp(-π k² / 4)``:
+   ``contrast_strong = 3`` is a false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of
+   7.4e-3. Ridge voxels at ``contrast_weak`` are kept when their connected piece of ridge holds one
+   at ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
+   sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
+   object fills the window) keeps its whole ridge above τ.
+3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.ridge`): one sheet of
+   sub-voxel points where the magnitude peaks, instead of the shell's full thickness.
+4. **Normals** across the sheet, each turned toward the sensors that lit its point (``sensors``,
+   the survey's transmitter positions).
+5. **Mesh:** screened Poisson through the oriented points, trimmed to the points, simplified
+   (:mod:`shsas_core.meshing`).
+
+``surface = "threshold"`` keeps every voxel centre at or above τ (no ridge, no contrast test) and
+``mesher = "marching_cubes"`` meshes the normalised magnitude's iso-surface at τ: together they
+are the paper's extraction (``--preset paper``).
 """
 
 from __future__ import annotations
@@ -33,10 +53,24 @@ from .volume import Grid, Volume
 PAPER_TAU = 0.2
 
 
+Surface = Literal["ridge", "threshold"]
+Mesher = Literal["poisson", "marching_cubes"]
+#: The defaults of the two choices, declared once (the spec's fields take them from here).
+SURFACE: Surface = "ridge"
+MESHER: Mesher = "poisson"
+SURFACE_HELP = ("surface points: ridge (the sheet where the magnitude peaks, kept by a local-contrast "
+                "test; shsas_core.extract) or threshold (every voxel at or above the level, as in the paper)")
+MESHER_HELP = ("mesh: poisson (screened Poisson through the oriented surface points, trimmed and "
+               "simplified) or marching_cubes (iso-surface of the volume at the level, as in the paper)")
+
+
 class ExtractConfig(BaseModel):
-    """How to turn a volume into a point cloud and a mesh."""
+    """How to turn a volume into a point cloud and a mesh (module doc)."""
 
     model_config = ConfigDict(extra="forbid")
+
+    surface: Surface = Field(SURFACE, description=SURFACE_HELP)
+    mesher: Mesher = Field(MESHER, description=MESHER_HELP)
 
     threshold: float | None = Field(None, gt=0, lt=1, description="normalised iso level τ; None = rule")
     rule: Literal["otsu", "percentile"] = Field("otsu", description="rule for τ when threshold is None")
@@ -45,6 +79,20 @@ class ExtractConfig(BaseModel):
     tau_max: float = Field(0.9, gt=0, lt=1, description="upper clip of the rule's τ")
     close_boundary: bool = Field(True, description="pad with empty voxels so meshes close at the box faces")
     chunk: int = Field(65536, ge=1, description="grid points per field evaluation (memory bound)")
+    smoothing: float = Field(1.5, ge=0, le=10, description="Gaussian smoothing before the ridge test, voxels")
+    background_window: float = Field(0.05, gt=0, description="edge of the cube the local background "
+                                     "mean is taken over, m")
+    contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
+                                 "background mean when connected to a strong one")
+    contrast_strong: float = Field(3.0, gt=0, description="a ridge piece needs one voxel at this multiple")
+    min_piece: float = Field(0.01, ge=0, lt=1, description="ridge pieces with fewer points than this share "
+                             "of the largest piece's are dropped as specks")
+    trim: float = Field(5.0, gt=0, description="Poisson faces farther than this many voxels from every "
+                        "surface point are cut")
+    faces_per_point: float = Field(2.0, gt=0, description="face budget of the simplified mesh per surface point")
+    max_faces: int = Field(200_000, ge=100, description="most faces of the simplified mesh")
+    mesh_min_piece: float = Field(0.05, ge=0, lt=1, description="mesh pieces with less area than this "
+                                  "share of the largest piece's are dropped")
 
 
 @dataclasses.dataclass
@@ -52,12 +100,15 @@ class PointCloud:
     """Points with one scalar each.
 
     Attributes:
-        points: (P, 3) float64 voxel centres, m, survey frame.
-        scalars: (P,) float32 normalised magnitude in [τ, 1].
+        points: (P, 3) float64 positions, m, survey frame (voxel centres for a threshold cloud,
+            sub-voxel ridge points for a ridge cloud).
+        scalars: (P,) float32 normalised magnitude at the point's voxel, in [τ, 1].
+        normals: (P, 3) float64 unit normals facing the sensors (ridge clouds), or None.
     """
 
     points: np.ndarray
     scalars: np.ndarray
+    normals: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -175,11 +226,96 @@ def mesh(volume: Volume, tau: float, close_boundary: bool = True):
     return trimesh.Trimesh(verts, faces, process=False)
 
 
-def extract(volume: Volume, config: ExtractConfig | None = None) -> tuple[float, PointCloud, Any]:
-    """τ by the config, then the point cloud and the mesh: ``(tau, PointCloud, Trimesh)``."""
+def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float) -> np.ndarray:
+    """``norm`` over its mean in a cube of edge ``window`` m around each voxel (module doc, step 2).
+
+    Args:
+        norm: (X, Y, Z) normalised magnitude; spacing: (3,) voxel size, m.
+    Returns:
+        (X, Y, Z) float32 ratio (0 where the local mean is 0).
+    """
+    from scipy import ndimage
+
+    size = [max(3, round(window / float(h)) | 1) for h in spacing]  # odd, at least 3 voxels
+    mean = ndimage.uniform_filter(norm.astype(np.float64), size=size, mode="nearest")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(mean > 0, norm / mean, 0.0)
+    return ratio.astype(np.float32)
+
+
+def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
+                sensors: np.ndarray | None = None) -> PointCloud:
+    """The surface points of ``volume`` (module doc, steps 1-4), with oriented normals.
+
+    Args:
+        volume: the reconstruction.
+        tau: candidate level on the normalised magnitude.
+        sensors: (M, 3) positions of the sensors (transmitters) that lit the scene, m; None:
+            normals face away from the centre of the scene box.
+    Returns:
+        PointCloud of sub-voxel ridge points, their voxels' normalised magnitudes and normals.
+    """
+    from .ridge import connected_to_strong, drop_small_pieces, orient_toward_sensors, ridge
+
+    _check_tau(tau)
+    cfg = config or ExtractConfig()
+    norm = normalize(volume)
+    grid = volume.grid
+    contrast = local_contrast(norm, grid.spacing, cfg.background_window)
+    weak = min(cfg.contrast_weak, cfg.contrast_strong)
+    lo = np.asarray(grid.box_min)
+    r = ridge(norm, (norm >= tau) & (contrast >= weak), lo, grid.spacing, cfg.smoothing)
+    r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
+    r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
+    if len(r) < max(grid.shape):
+        # too coarse or too sparse an image for the contrast test (the object fills the window):
+        # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
+        r = ridge(norm, norm >= tau, lo, grid.spacing, cfg.smoothing)
+    r = drop_small_pieces(r, grid.shape, cfg.min_piece)
+    if sensors is None or len(np.atleast_2d(sensors)) == 0:
+        centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))
+        # a point "sensor" far out along each point's own direction from the centre
+        sensors = centre + 1e3 * (r.points - centre)
+    normals = orient_toward_sensors(r.points, r.normals, np.asarray(sensors, dtype=np.float64))
+    return PointCloud(r.points, norm[tuple(r.index.T)].astype(np.float32), normals)
+
+
+def surface_mesh(cloud: PointCloud, spacing: float, config: ExtractConfig | None = None):
+    """Screened Poisson mesh of a ridge cloud (module doc, step 5); ``spacing`` the voxel size, m."""
+    from .meshing import poisson_mesh
+
+    cfg = config or ExtractConfig()
+    if cloud.normals is None:
+        raise ShsasError("extract: a Poisson mesh needs oriented normals (a ridge cloud)")
+    return poisson_mesh(cloud.points, cloud.normals, spacing, trim=cfg.trim * spacing,
+                        faces_per_point=cfg.faces_per_point, max_faces=cfg.max_faces,
+                        min_piece=cfg.mesh_min_piece)
+
+
+def extract(volume: Volume, config: ExtractConfig | None = None,
+            sensors: np.ndarray | None = None) -> tuple[float, PointCloud, Any]:
+    """τ by the config, then the point cloud and the mesh: ``(tau, PointCloud, Trimesh)``.
+
+    Args:
+        volume: the reconstruction.
+        config: the extraction (module doc).
+        sensors: (M, 3) transmitter positions, m, that face the ridge cloud's normals (see
+            :func:`ridge_cloud`); unused by a threshold cloud.
+    """
     cfg = config or ExtractConfig()
     tau = choose_threshold(volume, cfg)
-    return tau, point_cloud(volume, tau), mesh(volume, tau, cfg.close_boundary)
+    if cfg.surface == "ridge":
+        cloud = ridge_cloud(volume, tau, cfg, sensors)
+    else:
+        cloud = point_cloud(volume, tau)
+    if cfg.mesher == "marching_cubes":
+        return tau, cloud, mesh(volume, tau, cfg.close_boundary)
+    if cloud.normals is None:
+        # a threshold cloud has no sheet to orient: Poisson is fed the ridge of the same volume
+        ridge_pts = ridge_cloud(volume, tau, cfg, sensors)
+        spacing = float(np.min(volume.grid.spacing))
+        return tau, cloud, surface_mesh(ridge_pts, spacing, cfg)
+    return tau, cloud, surface_mesh(cloud, float(np.min(volume.grid.spacing)), cfg)
 
 
 def threshold_sweep(volume: Volume, taus: Sequence[float],

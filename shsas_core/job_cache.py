@@ -3,7 +3,7 @@
 
 Layout (every file written atomically)::
 
-    checkpoints/run_key.json             the spec (without the threshold) + the survey digest
+    checkpoints/run_key.json             the spec (without the extraction fields) + the survey digest
     checkpoints/deconvolved.npy          (N, T) complex64 s_PD of all pings
     checkpoints/backprojection_image.npy the training pings' image on the job's grid
     checkpoints/<method>/checkpoint.pt   the trainer's checkpoint (shsas_core.train)
@@ -11,8 +11,8 @@ Layout (every file written atomically)::
     checkpoints/<method>/extract.json    the extraction settings the method's outputs were made with
     checkpoints/<method>/done.json       the method's report entry: the method is finished
 
-A different spec or survey clears the folder; a changed threshold (or extraction code version)
-keeps the reconstructions and redoes only the extraction. The pipeline decides what to compute;
+A different spec or survey clears the folder; a changed extraction (``spec.EXTRACTION_FIELDS`` or
+the extraction code version) keeps the reconstructions and redoes only the extraction. The pipeline decides what to compute;
 this module only says what is already there.
 """
 
@@ -29,7 +29,7 @@ import numpy as np
 from .atomic import atomic_path
 from .export import write_json, write_text
 from .report import MethodReport, SignalFit
-from .spec import ReconstructionSpec
+from .spec import EXTRACTION_FIELDS, ReconstructionSpec
 from .survey import Survey
 
 
@@ -95,9 +95,9 @@ class JobCache:
 
     def __init__(self, folder: Path, spec: ReconstructionSpec, survey: Survey):
         self.folder = folder
-        # the threshold only affects extraction, which is redone from the saved volume, so
-        # changing it keeps the reconstructions
-        key = {"spec": spec.model_dump(mode="json", exclude={"threshold"}),
+        # the extraction fields only affect extraction, which is redone from the saved volume,
+        # so changing them keeps the reconstructions
+        key = {"spec": spec.model_dump(mode="json", exclude=set(EXTRACTION_FIELDS)),
                "survey": survey_fingerprint(survey)}
         kp = folder / "run_key.json"
         if kp.exists() and _read_json(kp) != key:

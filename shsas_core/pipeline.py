@@ -9,8 +9,8 @@
    spec.grid_count(scene_box))``. The backprojection image is computed once per job (cached as
    ``checkpoints/backprojection_image.npy``): it is the backprojection method's volume and, with
    ``spec.init == "backprojection"``, the start of the neural methods (:mod:`shsas_core.warmstart`);
-4. extraction at τ (``spec.threshold`` or the rule of :mod:`shsas_core.extract`) → point cloud and
-   mesh; export to PLY/GLB/NPY;
+4. extraction (:mod:`shsas_core.extract`: ``spec.surface`` points above ``spec.threshold`` or the
+   rule's τ, normals facing the survey's transmitters, ``spec.mesher`` mesh); export to PLY/GLB/NPY;
 5. metrics against the ground truth when the survey has one (protocol of :mod:`shsas_core.metrics`);
 6. checks for a failed result (:mod:`shsas_core.diagnostics`: collapsed or box-filling volume, a
    neural fit whose data loss did not fall) → ``MethodReport.warnings``;
@@ -57,7 +57,7 @@ from .metrics import (
 )
 from .progress import ProgressFn, StopFn, check_stop, never_stop, no_progress, sub_progress
 from .report import MethodReport, Report, ReportFigures, SignalFit, write_report
-from .spec import ReconstructionSpec
+from .spec import EXTRACTION_FIELDS, ReconstructionSpec
 from .survey import Survey
 from .volume import Grid, Volume
 
@@ -67,7 +67,7 @@ if TYPE_CHECKING:  # train imports torch: loaded only when a neural method runs
 #: Relative cost of each stage, for the overall progress fraction (each method's from the registry).
 _WEIGHTS = {"deconvolution": 0.05, **{m.name: m.cost for m in REGISTRY.values()}, "report": 0.05}
 #: Bump when extraction changes: finished runs then re-extract from their saved volumes.
-EXTRACT_VERSION = 3
+EXTRACT_VERSION = 4
 #: Pings whose signal fit is drawn in the report.
 _FIT_PINGS = 3
 #: At most this many held-out pings (evenly spaced) are rendered for the novel-view errors:
@@ -401,7 +401,8 @@ def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn
     checkpoints in ``cache``."""
     spec, survey, s_pd, out, should_stop = job.spec, job.survey, job.s_pd, job.out, job.should_stop
     names = artifact_names(method)
-    extract_key = {"threshold": spec.threshold, "version": EXTRACT_VERSION, "metrics": METRICS_VERSION}
+    extract_key = {**{f: getattr(spec, f) for f in EXTRACTION_FIELDS}, "version": EXTRACT_VERSION,
+                   "metrics": METRICS_VERSION}
     rep = cache.finished() if all((out / n).exists() for n in names.values()) else None
     if rep is not None:
         vol = read_volume_npy(out / names["volume"])
@@ -413,15 +414,14 @@ def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn
             import trimesh
 
             mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
-            rep = rep.model_copy(update={"warnings": _result_warnings(vol, rep.threshold, rep.points, rep.metrics)
-                                         + kept})
+            rep = rep.model_copy(update={"warnings": _result_warnings(vol, rep.threshold, rep.metrics) + kept})
             progress(1.0, method, {"cached": 1.0})
             return MethodOutput(rep, vol, mesh_, fit)
         # reconstruction done, extraction settings (or code) changed: extract again, no refit
         progress(0.9, method, {"cached": 1.0})
         t0 = time.perf_counter() - rep.seconds
         rep, mesh_ = _finish(method, spec, vol, job.gt, out, cache, names, extract_key, t0, rep.loss_curve,
-                             rep.signal_errors, progress, should_stop, kept)
+                             rep.signal_errors, progress, should_stop, kept, sensors=survey.tx)
         return MethodOutput(rep, vol, mesh_, fit)
 
     cache.folder.mkdir(parents=True, exist_ok=True)
@@ -456,18 +456,20 @@ def _run_method(method: str, job: _Job, cache: MethodCache, progress: ProgressFn
     check_stop(should_stop)
     progress(0.9, method, {})
     rep, mesh_ = _finish(method, spec, vol, job.gt, out, cache, names, extract_key, t0, loss_curve,
-                         signal_errs, progress, should_stop, fit_warns)
+                         signal_errs, progress, should_stop, fit_warns, sensors=survey.tx)
     return MethodOutput(rep, vol, mesh_, fit_fig)
 
 
 def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth | None, out: Path,
             cache: MethodCache, names: dict[str, str], extract_key: dict[str, Any], t0: float,
             loss_curve: list[tuple[int, float]], signal_errs: dict[str, float], progress: ProgressFn,
-            should_stop: StopFn, fit_warns: list[ResultWarning] | None = None) -> tuple[MethodReport, Any]:
+            should_stop: StopFn, fit_warns: list[ResultWarning] | None = None,
+            sensors: np.ndarray | None = None) -> tuple[MethodReport, Any]:
     """Extract, export, score, check for a failed result (the volume's checks plus
-    ``fit_warns`` from the fit), and mark the method done."""
-    ecfg = ExtractConfig(threshold=spec.threshold)
-    tau, cloud, mesh_ = extract(vol, ecfg)
+    ``fit_warns`` from the fit), and mark the method done. ``sensors``: (N, 3) transmitter
+    positions, m, that the surface normals face."""
+    ecfg = ExtractConfig(threshold=spec.threshold, surface=spec.surface, mesher=spec.mesher)
+    tau, cloud, mesh_ = extract(vol, ecfg, sensors)
     write_volume_npy(vol, out / names["volume"])
     write_point_cloud_ply(cloud, out / names["pointcloud"])
     write_mesh_ply(mesh_, out / names["mesh_ply"])
@@ -483,17 +485,16 @@ def _finish(method: str, spec: ReconstructionSpec, vol: Volume, gt: GroundTruth 
                        points=len(cloud), faces=len(mesh_.faces), seconds=time.perf_counter() - t0,
                        metrics=metrics, signal_errors=signal_errs, loss_curve=loss_curve,
                        artifacts=names, origin_offset=glb["origin_offset"],
-                       warnings=_result_warnings(vol, tau, len(cloud), metrics) + list(fit_warns or []))
+                       warnings=_result_warnings(vol, tau, metrics) + list(fit_warns or []))
     cache.mark_done(rep, extract_key)
     progress(1.0, method, {})
     return rep, mesh_
 
 
-def _result_warnings(vol: Volume, tau: float, n_points: int, metrics: dict[str, float | None]
-                     ) -> list[ResultWarning]:
+def _result_warnings(vol: Volume, tau: float, metrics: dict[str, float | None]) -> list[ResultWarning]:
     """The volume's checks; the mesh's only when the volume passed (a collapsed or fog-filled
     volume's mesh says nothing more)."""
-    return volume_warnings(vol, tau, n_points) or mesh_warnings(metrics)
+    return volume_warnings(vol, tau) or mesh_warnings(metrics)
 
 
 def _fit_neural(method: str, job: _Job, ckpt: Path, progress: ProgressFn) -> tuple[Any, FitResult]:

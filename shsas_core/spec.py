@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
+from .extract import MESHER, MESHER_HELP, SURFACE, SURFACE_HELP, Mesher, Surface
 from .methods import REGISTRY
 from .options import (
     ANGULAR_PRIOR,
@@ -53,6 +54,9 @@ from .options import (
 from .survey import SceneBox
 from .volume import auto_grid_count
 
+#: The spec fields that only change extraction: a finished job re-extracts from its saved volumes
+#: when they change (shsas_core.job_cache) instead of reconstructing again.
+EXTRACTION_FIELDS: tuple[str, ...] = ("threshold", "surface", "mesher")
 #: The names of shsas_core.methods.REGISTRY (a literal, so the API's schema lists them; a test
 #: checks the two agree).
 Method = Literal["backprojection", "reed", "shsas"]
@@ -81,6 +85,8 @@ class ReconstructionSpec(BaseModel):
         "wiener", description="pulse deconvolution before every method (its kernel is also the psf "
         "forward model's)")
     threshold: float | None = Field(None, gt=0, lt=1, description="normalised iso level; None = documented rule")
+    surface: Surface = Field(SURFACE, description=SURFACE_HELP)
+    mesher: Mesher = Field(MESHER, description=MESHER_HELP)
     num_bins: NumBins = NUM_BINS
     num_rays: NumRays = NUM_RAYS
     pings_per_batch: PingsPerBatch = PINGS_PER_BATCH
@@ -134,6 +140,6 @@ PAPER_SETTINGS: dict[str, object] = {
     "init": "none", "forward": "impulse", "target": "coherent", "lr": 1e-3, "encoding": "paper_gpu",
     "num_bins": 200, "num_rays": 4800, "iters": 50_000, "occupancy": None, "sparsity": 0.0,
     "angular_prior": 0.0,
-    "average_last": None, "coarse_to_fine": None,
+    "average_last": None, "coarse_to_fine": None, "surface": "threshold", "mesher": "marching_cubes",
 }
 PRESETS: dict[str, dict[str, object]] = {"default": {}, "paper": PAPER_SETTINGS}

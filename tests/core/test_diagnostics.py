@@ -24,8 +24,8 @@ GRID = Grid((-0.1, -0.1, -0.02), (0.1, 0.1, 0.18), (32, 32, 32))
 def checked(values: np.ndarray) -> list[ResultWarning]:
     """Extract like the pipeline does (default Otsu rule), then check."""
     vol = Volume(GRID, values.astype(np.float32))
-    tau, cloud, _ = extract(vol)
-    return volume_warnings(vol, tau, len(cloud))
+    tau, _cloud, _ = extract(vol)
+    return volume_warnings(vol, tau)
 
 
 def shell(radius: float = 0.08, width: float = 0.006, floor: float = 0.01, seed: int = 0) -> np.ndarray:
@@ -54,7 +54,7 @@ def test_complex_volumes_are_checked_by_magnitude() -> None:
     # a constant magnitude under a varying phase is still nothing
     phase = np.exp(1j * np.random.default_rng(2).uniform(0, 2 * np.pi, GRID.shape))
     vol = Volume(GRID, (0.5 * phase).astype(np.complex64))
-    assert [w.code for w in volume_warnings(vol, 0.5, 0)] == ["collapsed"]
+    assert [w.code for w in volume_warnings(vol, 0.5)] == ["collapsed"]
 
 
 def test_a_volume_with_60_percent_above_tau_fills_the_box() -> None:
@@ -66,11 +66,17 @@ def test_a_volume_with_60_percent_above_tau_fills_the_box() -> None:
     assert "fills the scene box" in found[0].message
 
 
-def test_box_filling_uses_the_given_point_count() -> None:
-    vol = Volume(GRID, shell().astype(np.float32))
-    n = GRID.num_voxels
-    assert volume_warnings(vol, 0.2, int(BOX_FILL_LIMIT * n) - 1) == []
-    assert [w.code for w in volume_warnings(vol, 0.2, int(BOX_FILL_LIMIT * n) + 1)] == ["box_filling"]
+def test_box_filling_counts_the_voxels_at_or_above_tau() -> None:
+    # a ramp along x: the share of voxels at or above τ is known exactly for each τ
+    x = (np.arange(GRID.shape[0]) + 0.5) / GRID.shape[0]
+    vol = Volume(GRID, np.broadcast_to(x[:, None, None], GRID.shape).astype(np.float32).copy())
+    norm_x = (x - x[0]) / (x[-1] - x[0])
+    for tau in (0.3, 0.5, 0.7):
+        share = float(np.mean(norm_x >= tau))
+        found = volume_warnings(vol, tau)
+        assert [w.code for w in found] == (["box_filling"] if share >= BOX_FILL_LIMIT else [])
+        if found:
+            assert found[0].measure == pytest.approx(share)
 
 
 def test_a_falling_loss_raises_nothing() -> None:

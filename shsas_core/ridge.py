@@ -1,0 +1,209 @@
+"""The ridge of a volume's magnitude: one sheet of points where a blurred shell peaks.
+
+A sonar image of a surface is a shell: the magnitude peaks on the surface and falls off over the
+range resolution on either side. Thresholding keeps the whole shell (several voxels thick, so a
+marching-cubes mesh of it is two sheets, inside and outside); the surface is the shell's ridge.
+
+Ridge test (a height ridge, Eberly 1996): smooth the magnitude ``m`` with a Gaussian of
+``sigma`` voxels, take its gradient ``g`` and Hessian ``H`` by central differences at the
+candidate voxels, and let ``n`` be the eigenvector of ``H``'s most negative eigenvalue ``λ``
+(the direction across the sheet: ``m`` curves down fastest along it; ``|λ|`` must be the Hessian's
+largest, and the whole gradient no steeper than ``|λ| h``, else the voxel sits on the flank of a
+curved shell, where ``m`` also curves down along the sheet). Along ``n`` the magnitude is
+locally ``m(c + t n) ≈ m(c) + (g·n) t + ½ λ t²``, whose peak lies at ``t* = -(g·n) / λ``. The voxel
+at ``c`` is a ridge voxel when ``λ < 0`` and that peak lies in its slab, ``|t*| <= h/2`` (``h`` the
+voxel size along ``n``): exactly one voxel of every column across a sheet passes, whatever the
+sheet's orientation (non-maximum suppression along ``n``). Its point is the peak itself,
+``c + t* n``, so points sit on the ridge to a fraction of a voxel rather than on voxel centres.
+
+The volume gradient vanishes on the ridge, so the normal is ``n`` (the gradient's direction just
+off the ridge, up to sign); :func:`orient_toward_sensors` gives it a sign.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+#: A ridge voxel's gradient is at most this many voxels of Newton step (``|g| <= STEEP |λ| h``):
+#: on a shell of radius R the flank's ratio is about R (tens of voxels), on the ridge of a sonar
+#: image brightness varies along the surface by a voxel's worth or less (speckle included).
+STEEP = 4.0
+
+
+@dataclasses.dataclass
+class Ridge:
+    """Ridge points of a volume.
+
+    Attributes:
+        index: (P, 3) int64 voxel indices of the ridge voxels.
+        points: (P, 3) float64 sub-voxel ridge positions, m, survey frame.
+        normals: (P, 3) float64 unit normals across the sheet (sign not yet chosen).
+        values: (P,) float32 smoothed magnitude at the voxel, same scale as the input.
+    """
+
+    index: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def subset(self, keep: np.ndarray) -> Ridge:
+        """The points selected by a boolean mask or index array ``keep``."""
+        return Ridge(self.index[keep], self.points[keep], self.normals[keep], self.values[keep])
+
+
+def smooth(values: np.ndarray, sigma: float) -> np.ndarray:
+    """``values`` (X, Y, Z) smoothed by a Gaussian of ``sigma`` voxels (0: unchanged), float32."""
+    v = np.asarray(values, dtype=np.float32)
+    if sigma <= 0:
+        return v
+    return ndimage.gaussian_filter(v, sigma=sigma, mode="nearest").astype(np.float32)
+
+
+def derivatives(s: np.ndarray, index: np.ndarray, spacing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient and Hessian of ``s`` at voxels ``index`` by central differences.
+
+    Args:
+        s: (X, Y, Z) values.
+        index: (P, 3) voxel indices.
+        spacing: (3,) voxel size, m.
+    Returns:
+        ``(g, H)``: (P, 3) gradient and (P, 3, 3) symmetric Hessian, per metre (per m²). The volume
+        is extended by repeating its faces, so derivatives at the faces are one-sided.
+    """
+    p = np.pad(s.astype(np.float64), 1, mode="edge")
+    i = index + 1
+    h = np.asarray(spacing, dtype=np.float64)
+    eye = np.eye(3, dtype=np.int64)
+
+    def at(off: np.ndarray) -> np.ndarray:
+        j = i + off
+        return p[j[:, 0], j[:, 1], j[:, 2]]
+
+    c = at(np.zeros(3, dtype=np.int64))
+    g = np.empty((len(index), 3))
+    hess = np.empty((len(index), 3, 3))
+    for a in range(3):
+        fwd, bwd = at(eye[a]), at(-eye[a])
+        g[:, a] = (fwd - bwd) / (2 * h[a])
+        hess[:, a, a] = (fwd - 2 * c + bwd) / h[a] ** 2
+        for b in range(a + 1, 3):
+            hab = (at(eye[a] + eye[b]) - at(eye[a] - eye[b]) - at(-eye[a] + eye[b]) + at(-eye[a] - eye[b])) / (
+                4 * h[a] * h[b])
+            hess[:, a, b] = hess[:, b, a] = hab
+    return g, hess
+
+
+def ridge(values: np.ndarray, candidates: np.ndarray, box_min: np.ndarray, spacing: np.ndarray,
+          sigma: float = 1.0) -> Ridge:
+    """Ridge voxels of ``values`` among ``candidates`` (module doc).
+
+    Args:
+        values: (X, Y, Z) non-negative magnitude.
+        candidates: (X, Y, Z) bool, voxels allowed to be ridge voxels (e.g. above a threshold).
+        box_min: (3,) grid corner, m; voxel (i, j, k) has centre ``box_min + (idx + 0.5) * spacing``.
+        spacing: (3,) voxel size, m.
+        sigma: Gaussian smoothing before the derivatives, voxels.
+    Returns:
+        :class:`Ridge` (empty when no candidate is a ridge voxel).
+    """
+    spacing = np.asarray(spacing, dtype=np.float64)
+    s = smooth(values, sigma)
+    idx = np.argwhere(candidates)
+    if len(idx) == 0:
+        return Ridge(np.zeros((0, 3), np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, np.float32))
+    g, hess = derivatives(s, idx, spacing)
+    lam, vec = np.linalg.eigh(hess)  # ascending: column 0 is the most negative curvature
+    n = vec[:, :, 0]
+    lam0 = lam[:, 0]
+    slope = np.einsum("pi,pi->p", g, n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -slope / lam0
+    half = 0.5 * np.sqrt(np.einsum("pi,i->p", n * n, spacing * spacing))  # half the voxel along n
+    # on the outer flank of a curved shell the magnitude also curves down along the sheet, where
+    # the gradient has no component; there the gradient is steep across the sheet. On the ridge
+    # the whole gradient is what one voxel of Newton step along n explains (brightness that
+    # varies along the surface changes over many voxels, not one)
+    steep = np.linalg.norm(g, axis=1) > -lam0 * STEEP * 2 * half
+    keep = (lam0 < 0) & (-lam0 >= np.abs(lam[:, 2])) & ~steep & np.isfinite(t) & (np.abs(t) <= half)
+    idx, n, t = idx[keep], n[keep], t[keep]
+    centres = np.asarray(box_min, dtype=np.float64) + (idx + 0.5) * spacing
+    pts = centres + t[:, None] * n
+    vals = s[tuple(idx.T)].astype(np.float32)
+    return Ridge(idx.astype(np.int64), pts, n, vals)
+
+
+def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float) -> Ridge:
+    """Keep the ridge voxels whose 26-connected piece holds at least ``min_share`` of the points of
+    the largest piece: a surface is a connected sheet, isolated noise peaks are specks."""
+    if len(r) == 0 or min_share <= 0:
+        return r
+    mask = np.zeros(shape, dtype=bool)
+    mask[tuple(r.index.T)] = True
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
+    lab = labels[tuple(r.index.T)]
+    sizes = np.bincount(lab, minlength=count + 1)
+    return r.subset(sizes[lab] >= min_share * sizes[1:].max())
+
+
+def orient_toward_sensors(points: np.ndarray, normals: np.ndarray, sensors: np.ndarray,
+                          nearest: int = 8, neighbours: int = 12, rounds: int = 2) -> np.ndarray:
+    """Sign each normal so it points toward the sensors that lit its point.
+
+    A sonar only sees the side of a surface that faces it, and the object lies inside the
+    survey, so of the sensors on either side of a point's tangent plane those nearest the point
+    are the ones that saw it: each normal is flipped to face the mean direction to its
+    ``nearest`` sensors. Where that vote is weak (a point about as near to sensors on both sides)
+    ``rounds`` passes of a neighbourhood vote (the ``neighbours`` nearest points, weighted by
+    ``|n·n_j|``) make the sign agree with the sheet around it.
+
+    Args:
+        points: (P, 3) m; normals: (P, 3) unit vectors, any sign.
+        sensors: (M, 3) sensor (e.g. transmitter) positions, m.
+    Returns:
+        (P, 3) normals, each ``±`` the input.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64).copy()
+    sens = np.unique(np.asarray(sensors, dtype=np.float64).reshape(-1, 3), axis=0)
+    if len(pts) == 0 or len(sens) == 0:
+        return nrm
+    k = min(nearest, len(sens))
+    _, j = cKDTree(sens).query(pts, k=k)
+    j = j.reshape(len(pts), k)
+    to_sensor = sens[j] - pts[:, None, :]
+    to_sensor /= np.linalg.norm(to_sensor, axis=2, keepdims=True) + 1e-30
+    toward = to_sensor.mean(1)  # (P, 3); |toward·n| in [0, 1]: how clearly the sensors pick a side
+    nrm[np.einsum("pc,pc->p", toward, nrm) < 0] *= -1
+    if len(pts) > 1 and rounds > 0:
+        kk = min(neighbours + 1, len(pts))
+        _, nb = cKDTree(pts).query(pts, k=kk)
+        nb = nb.reshape(len(pts), kk)[:, 1:]
+        for _ in range(rounds):
+            # a point keeps its sign while its own vote outweighs its neighbours' (each weighted
+            # by the strength of its own vote): only weakly held signs follow the sheet around them
+            own = np.einsum("pc,pc->p", toward, nrm)
+            agree = np.einsum("pkc,pc->pk", nrm[nb], nrm)
+            score = own + (agree * np.abs(own)[nb]).mean(1)
+            nrm[score < 0] *= -1
+    return nrm
+
+
+def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float) -> Ridge:
+    """Hysteresis: keep the ridge voxels whose 26-connected piece of ridge voxels holds at least
+    one voxel of value >= ``strong`` (Canny's rule: weak ridge continues a strong one or goes)."""
+    if len(r) == 0:
+        return r
+    mask = np.zeros(shape, dtype=bool)
+    mask[tuple(r.index.T)] = True
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
+    lab = labels[tuple(r.index.T)]
+    good = np.zeros(count + 1, dtype=bool)
+    good[lab[r.values >= strong]] = True
+    return r.subset(good[lab])
