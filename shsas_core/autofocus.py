@@ -30,7 +30,8 @@ What the data identify (:func:`identified`, the one rule): every unknown gets tw
   ping subsets, each searched on its own, and the all-ping estimate.
 
 A correction is applied only where the curvature is at least :data:`MIN_CURVATURE`, the spread
-at most :data:`MAX_SPREAD_RATIO` of the correction, the correction at least
+at most :data:`MAX_SPREAD_RATIO` of the correction and :data:`MAX_SPREAD_STEPS` of a resolution
+step, the correction at least
 :data:`MIN_CHANGE_STEPS` of a resolution step and the estimate inside the search range; otherwise the input value is kept and the result says why. A perturbation the data cannot
 resolve is therefore left as it came, never moved further off.
 
@@ -76,6 +77,9 @@ MIN_CURVATURE = 0.01
 #: Identifiability rule, part 2: the subsets' spread may be at most this fraction of the
 #: correction (a correction five times its own scatter).
 MAX_SPREAD_RATIO = 0.2
+#: Identifiability rule, part 2b: the subsets must also agree to this fraction of a resolution
+#: step (an estimate that moves further between halves of the data is not pinned down).
+MAX_SPREAD_STEPS = 0.1
 #: Identifiability rule, part 3: a change under this fraction of a resolution step is no change
 #: (below what the search resolves, and not worth a new survey file).
 MIN_CHANGE_STEPS = 0.05
@@ -258,6 +262,9 @@ def identified(curvature: float, spread: float | None, correction: float, step: 
                        f"{MIN_CURVATURE:g}), so the data do not identify it")
     if spread is None:
         return False, "too few pings to compare estimates from separate ping subsets"
+    if spread > MAX_SPREAD_STEPS * step:
+        return False, (f"the ping subsets' estimates scatter by {spread:.3g}, more than {MAX_SPREAD_STEPS:g} of a "
+                       f"resolution step ({step:.3g}), so the data do not pin it down")
     if spread > MAX_SPREAD_RATIO * abs(correction):
         return False, (f"the ping subsets' estimates scatter by {spread:.3g}, not small against the change "
                        f"of {correction:+.3g} (they must scatter less than {MAX_SPREAD_RATIO:.2g} of it), so "

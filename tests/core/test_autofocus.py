@@ -10,6 +10,7 @@ import pytest
 
 from shsas_core.autofocus import (
     MAX_SPREAD_RATIO,
+    MAX_SPREAD_STEPS,
     MIN_CHANGE_STEPS,
     MIN_CURVATURE,
     AutofocusConfig,
@@ -146,10 +147,13 @@ def test_identified_rule():
     assert not identified(0.1, 0.01, 1.0, 1.0, True)[0]  # on the search edge
     ok, why = identified(MIN_CURVATURE / 2, 0.0, 1.0, 1.0, False)
     assert not ok and "barely changes" in why
-    ok, why = identified(0.1, 1.01 * MAX_SPREAD_RATIO, 1.0, 1.0, False)
+    # a resolution step of 100: the step bound leaves the ratio to the correction to decide
+    ok, why = identified(0.1, 10.1 * MAX_SPREAD_RATIO, 10.0, 100.0, False)
     assert not ok and "do not identify a change" in why
-    assert identified(0.1, 0.99 * MAX_SPREAD_RATIO, -1.0, 1.0, False)[0]
+    assert identified(0.1, 9.9 * MAX_SPREAD_RATIO, -10.0, 100.0, False)[0]
     assert not identified(0.1, None, 1.0, 1.0, False)[0]  # no subsets
+    ok, why = identified(0.1, 1.01 * MAX_SPREAD_STEPS, 100.0, 1.0, False)
+    assert not ok and "do not pin it down" in why
     ok, why = identified(0.1, 0.0, 0.99 * MIN_CHANGE_STEPS, 1.0, False)
     assert not ok and "nothing to correct" in why
 
