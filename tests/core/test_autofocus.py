@@ -238,3 +238,15 @@ def test_narrowband_simulation_never_worse(narrow, rel, known_plane):
         assert res.correction.sound_speed == pytest.approx(c * (1 + rel), rel=1e-12)
     if known_plane and rel:
         assert ident.identified  # a point-lit plate in a known plane is resolved (measured 0.03 %)
+
+
+def test_the_verdict_reaches_the_report(plane):
+    from shsas_core.io import summarize
+    from shsas_core.report import Report, ReportFigures, render_html
+    from shsas_core.spec import ReconstructionSpec
+
+    res = autofocus(plane, config=AutofocusConfig(parameters=("sound_speed",), plane_z=PLANE_Z))
+    summary = summarize(apply_result(plane, res))
+    page = render_html(Report(spec=ReconstructionSpec(methods=["backprojection"]), survey=summary,
+                              ground_truth=False), ReportFigures())
+    assert res.summary in page and "kept sound_speed" in page
