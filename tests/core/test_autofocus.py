@@ -118,6 +118,7 @@ def test_cli_writes_the_corrected_survey(plane, tmp_path, capsys):
 @pytest.mark.parametrize("argv,needle", [
     (["--params", "speed"], "--params: speed is not a parameter"),
     (["--pixels", "2"], "--pixels"),
+    (["--subsets", "1"], "--subsets"),
     (["--params", "level_z"], "level_z needs at least two height levels"),
 ])
 def test_cli_bad_options_one_line(plane, tmp_path, capsys, argv, needle):
