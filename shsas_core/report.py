@@ -402,7 +402,12 @@ def render_html(report: Report, figures: ReportFigures) -> str:
     for k in ("platform", "pings", "samples_per_ping", "band_hz", "sound_speed_m_s", "range_resolution_m"):
         if k in report.survey:
             parts.append(f"<tr><th>{esc(k)}</th><td>{esc(str(report.survey[k]))}</td></tr>")
-    parts.append("</table><h2>Spec</h2><pre>" + esc(report.spec.model_dump_json(indent=1)) + "</pre>")
+    parts.append("</table>")
+    # an autofocused survey says what was corrected and what the data could not identify
+    verdict = (report.survey.get("attrs") or {}).get("autofocus_summary")
+    if verdict:
+        parts.append(f"<p class='note'>{esc(str(verdict))}</p>")
+    parts.append("<h2>Spec</h2><pre>" + esc(report.spec.model_dump_json(indent=1)) + "</pre>")
     parts.append("<h2>Methods</h2><table><tr><th>method</th><th>L</th><th>τ</th><th>points</th>"
                  "<th>faces</th><th>seconds</th><th>warnings</th><th>files</th></tr>")
     for m in report.methods:

@@ -87,8 +87,16 @@ def test_autofocus_recovers_perturbed_sound_speed_and_range_offset(scan, rel, dr
     bad = perturbed(s, sound_speed_rel=rel, range_offset_m=dr)
     param = "sound_speed" if rel else "range_offset"
     res = autofocus(bad, config=AutofocusConfig(parameters=(param,), plane_z=z_focus))
-    assert res.correction.sound_speed / s.meta.sound_speed - 1 == pytest.approx(0.0, abs=0.002)
-    assert res.correction.range_offset_m == pytest.approx(dr, abs=0.001)
+    # the search finds the error put in ...
+    assert res.estimate.sound_speed / s.meta.sound_speed - 1 == pytest.approx(0.0, abs=0.002)
+    assert res.estimate.range_offset_m == pytest.approx(dr, abs=0.001)
+    # ... and what it applies is never further off: a 2 % sound-speed error is identified; the
+    # 5 mm offsets (0.6 range cells) sit at the subsets' agreement bound (measured scatter
+    # 0.88 mm against the bound of 0.86 mm), so they may be kept
+    assert abs(res.correction.range_offset_m - dr) <= abs(dr) + 1e-12
+    if rel:
+        assert res.identifiability[0].identified
+        assert res.correction.sound_speed / s.meta.sound_speed - 1 == pytest.approx(0.0, abs=0.002)
 
 
 #: The cut-out's plane of focus in the converted frame (docs/results.md, "Real data").

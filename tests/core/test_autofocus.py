@@ -1,4 +1,5 @@
-"""Autofocus on simulated surveys with known errors, the correction it writes, and its CLI."""
+"""Autofocus on simulated surveys with known errors, what it applies and what it keeps, the
+correction it writes, and its CLI."""
 
 from __future__ import annotations
 
@@ -7,12 +8,25 @@ import json
 import numpy as np
 import pytest
 
-from shsas_core.autofocus import AutofocusConfig, Correction, apply_correction, autofocus
+from shsas_core.autofocus import (
+    MAX_SPREAD_RATIO,
+    MAX_SPREAD_STEPS,
+    MIN_CHANGE_STEPS,
+    MIN_CURVATURE,
+    AutofocusConfig,
+    Correction,
+    apply_correction,
+    apply_result,
+    autofocus,
+    default_parameters,
+    identified,
+)
 from shsas_core.cli import main
 from shsas_core.errors import ShsasError
 from shsas_core.io import read_survey, write_survey
 
 from .focus_scenes import PLANE_Z, levels_scene, perturbed, plane_scene
+from .narrowband import narrowband_plane_scene
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +69,10 @@ def test_plane_scene_sound_speed_recovered(plane, rel):
     res = autofocus(bad, config=AutofocusConfig(parameters=("sound_speed",), plane_z=PLANE_Z))
     assert res.correction.sound_speed / plane.meta.sound_speed - 1 == pytest.approx(0, abs=0.002)
     assert res.cost_after < res.cost_before
+    (ident,) = res.identifiability
+    assert ident.identified and ident.curvature >= MIN_CURVATURE and len(ident.subset_estimates) == 3
+    assert ident.spread <= MAX_SPREAD_RATIO * abs(ident.estimate - ident.input)
+    assert "corrected sound_speed" in res.summary
 
 
 @pytest.mark.parametrize("dr", [0.005, -0.005])
@@ -85,8 +103,13 @@ def test_cli_writes_the_corrected_survey(plane, tmp_path, capsys):
     src = write_survey(perturbed(plane, sound_speed_rel=0.02), tmp_path / "bad.h5")
     out = tmp_path / "fixed.h5"
     assert main(["autofocus", str(src), str(out), "--params", "sound_speed", "--plane-z", str(PLANE_Z)]) == 0
-    printed = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    printed = json.loads(captured.out)
+    assert "sound_speed corrected from" in captured.err
+    assert printed["identifiability"][0]["identified"] and printed["summary"].startswith("autofocus: corrected")
     fixed = read_survey(out)
+    assert fixed.meta.attrs["autofocus_summary"] == printed["summary"]
+    assert json.loads(fixed.meta.attrs["autofocus"])["identifiability"][0]["name"] == "sound_speed"
     assert fixed.meta.sound_speed == pytest.approx(plane.meta.sound_speed, rel=0.002)
     assert printed["sound_speed_m_s"] == pytest.approx(fixed.meta.sound_speed, abs=1e-3)
     assert fixed.meta.attrs["autofocus_original_sound_speed"] == pytest.approx(plane.meta.sound_speed * 1.02)
@@ -95,6 +118,7 @@ def test_cli_writes_the_corrected_survey(plane, tmp_path, capsys):
 @pytest.mark.parametrize("argv,needle", [
     (["--params", "speed"], "--params: speed is not a parameter"),
     (["--pixels", "2"], "--pixels"),
+    (["--subsets", "1"], "--subsets"),
     (["--params", "level_z"], "level_z needs at least two height levels"),
 ])
 def test_cli_bad_options_one_line(plane, tmp_path, capsys, argv, needle):
@@ -116,3 +140,114 @@ def test_level_z_knots_recover_a_wrong_height_step():
     res = autofocus(perturbed(s, level_dz=dz), config=cfg)
     np.testing.assert_allclose(res.correction.level_z_m, -dz, atol=2.5e-3)
     assert len(res.correction.level_z_m) == 5
+
+
+def test_identified_rule():
+    # each part of the rule can refuse on its own
+    assert identified(0.1, 0.01, 1.0, 1.0, False)[0]
+    assert not identified(0.1, 0.01, 1.0, 1.0, True)[0]  # on the search edge
+    ok, why = identified(MIN_CURVATURE / 2, 0.0, 1.0, 1.0, False)
+    assert not ok and "barely changes" in why
+    # a resolution step of 100: the step bound leaves the ratio to the correction to decide
+    ok, why = identified(0.1, 10.1 * MAX_SPREAD_RATIO, 10.0, 100.0, False)
+    assert not ok and "do not identify a change" in why
+    assert identified(0.1, 9.9 * MAX_SPREAD_RATIO, -10.0, 100.0, False)[0]
+    assert not identified(0.1, None, 1.0, 1.0, False)[0]  # no subsets
+    ok, why = identified(0.1, 1.01 * MAX_SPREAD_STEPS, 100.0, 1.0, False)
+    assert not ok and "do not pin it down" in why
+    ok, why = identified(0.1, 0.0, 0.99 * MIN_CHANGE_STEPS, 1.0, False)
+    assert not ok and "nothing to correct" in why
+
+
+def test_profile_curvature_matches_a_brute_force_profile(plane):
+    """On a known quadratic cost in resolution steps, the Hessian's profile curvature equals the
+    cost rise one step out along each unknown with the other one minimised by scipy."""
+    from scipy.optimize import minimize_scalar
+
+    from shsas_core.autofocus import _Problem
+    from shsas_core.planar import height_levels
+
+    cfg = AutofocusConfig(parameters=("sound_speed", "range_offset"), plane_z=PLANE_Z)
+    prob = _Problem(plane, cfg, cfg.parameters, height_levels(plane.tx), np.zeros((4, 3)))
+    r = prob.resolution_steps()
+    a = np.array([[0.3, 0.25], [0.25, 0.4]])  # a correlated valley, positive definite
+
+    def quad(x, imager=None, plane_dz=0.0):
+        u = np.asarray(x) / r
+        return 5.0 + 0.5 * u @ a @ u
+
+    prob.cost = quad
+    curv = prob.curvatures(np.zeros(2), None, 5.0, plane_free=False)
+    for i in range(2):
+        j = 1 - i
+
+        def along(v, i=i, j=j):
+            u = np.zeros(2)
+            u[i], u[j] = 1.0, v
+            return quad(u * r)
+
+        brute = minimize_scalar(along).fun - 5.0
+        assert curv[i] == pytest.approx(brute, rel=1e-6)
+    # the per-axis rise would overstate what the data pin down along a valley
+    assert np.all(curv < np.diag(a) / 2)
+
+
+def test_defaults_fit_the_survey(plane, levels):
+    from shsas_core.planar import elevation_info
+
+    assert default_parameters(elevation_info(plane)) == ("sound_speed",)
+    assert default_parameters(elevation_info(levels)) == ("sound_speed", "range_offset")
+    res = autofocus(perturbed(plane, sound_speed_rel=0.02), config=AutofocusConfig(plane_z=PLANE_Z))
+    assert res.parameters == ["sound_speed"] and res.parameters_default
+    assert any("the default for such a survey" in n for n in res.notes)
+
+
+def test_a_survey_started_right_is_kept(plane):
+    """No error put in: the sharpest image lies within the subsets' scatter of the input value, so
+    nothing moves and the result says so."""
+    res = autofocus(plane, config=AutofocusConfig(parameters=("sound_speed",), plane_z=PLANE_Z))
+    (ident,) = res.identifiability
+    assert not ident.identified and ident.value == plane.meta.sound_speed
+    assert res.correction.sound_speed == plane.meta.sound_speed
+    assert "kept at" in ident.message and "kept sound_speed" in res.summary
+    out = apply_result(plane, res)
+    assert out.meta.sound_speed == plane.meta.sound_speed
+    assert "kept sound_speed" in out.meta.attrs["autofocus_summary"]
+
+
+@pytest.fixture(scope="module")
+def narrow():
+    return narrowband_plane_scene()
+
+
+@pytest.mark.slow  # 40-70 s per case on 2 loaded cores
+@pytest.mark.parametrize("rel", [0.02, -0.02, 0.0])
+@pytest.mark.parametrize("known_plane", [True, False])
+def test_narrowband_simulation_never_worse(narrow, rel, known_plane):
+    """A 5 kHz band (34 mm range cells): with the scene's plane given, sound speed is recovered to
+    0.5 % or kept; with the plane left to the search, whatever is applied is never further from
+    the truth than the input was (started right: nothing moves)."""
+    c = narrow.meta.sound_speed
+    res = autofocus(perturbed(narrow, sound_speed_rel=rel),
+                    config=AutofocusConfig(plane_z=PLANE_Z if known_plane else None))
+    applied = res.correction.sound_speed / c - 1
+    (ident,) = res.identifiability
+    assert abs(applied) <= abs(rel) + 1e-12
+    if ident.identified:
+        assert applied == pytest.approx(0.0, abs=0.005)
+    else:
+        assert res.correction.sound_speed == pytest.approx(c * (1 + rel), rel=1e-12)
+    if known_plane and rel:
+        assert ident.identified  # a point-lit plate in a known plane is resolved (measured 0.03 %)
+
+
+def test_the_verdict_reaches_the_report(plane):
+    from shsas_core.io import summarize
+    from shsas_core.report import Report, ReportFigures, render_html
+    from shsas_core.spec import ReconstructionSpec
+
+    res = autofocus(plane, config=AutofocusConfig(parameters=("sound_speed",), plane_z=PLANE_Z))
+    summary = summarize(apply_result(plane, res))
+    page = render_html(Report(spec=ReconstructionSpec(methods=["backprojection"]), survey=summary,
+                              ground_truth=False), ReportFigures())
+    assert res.summary in page and "kept sound_speed" in page
