@@ -1,7 +1,7 @@
 """The plane of focus of single-height scans, by each sharpness measure, side by side.
 
 For the real AirSAS cut-out scan (``../shared/data/airsas/cutout_20k`` less ``bg_20k``), the
-same recording filtered to 5 kHz around 20 kHz (``tests/core/band_limit.py``) and a simulated
+same recording filtered to 5 kHz around 20 kHz (``tests/core/narrowband.py``) and a simulated
 narrowband single-height scan of points in one plane (``tests/core/focus_scenes.py``), prints
 what :func:`shsas_core.planar.find_focus` finds with each measure: the height, whether it is
 a focus, the heights searched, the range resolution and the seconds taken.
@@ -28,8 +28,8 @@ from shsas_core.planar import find_focus  # noqa: E402
 
 def scans() -> list[tuple[str, object, float | None]]:
     """(name, survey, true plane height or None) for each scan that is available."""
-    from tests.core.band_limit import band_limited
     from tests.core.focus_scenes import NARROW_BAND_HZ, PLANE_Z, plane_scene
+    from tests.core.narrowband import band_limited
 
     out: list[tuple[str, object, float | None]] = []
     data = ROOT / ".." / "shared" / "data" / "airsas"

@@ -14,12 +14,13 @@ import time
 from pathlib import Path
 from typing import Annotated, Literal
 
+import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
 from shsas_core.export import read_volume_npy, write_json, write_mesh_glb, write_point_cloud_ply
-from shsas_core.extract import ExtractConfig, mesh, point_cloud
+from shsas_core.extract import ExtractConfig, extract
 from shsas_core.pipeline import artifact_names
 from shsas_core.spec import Method
 from worker.runner import job_paths
@@ -28,6 +29,8 @@ from worker.store import Job
 from .artifacts import file_response, safe_artifact_path
 from .lookup import succeeded_job
 from .models import ErrorOut
+from .survey_view import FOLDER as VIEW_FOLDER
+from .survey_view import VIEW_NAME
 
 #: Levels are rounded to this step: a slider cannot make unbounded distinct extractions.
 TAU_STEP = 0.001
@@ -44,8 +47,8 @@ class Extraction(BaseModel):
 
     method: str
     threshold: float = Field(description="the level used: the requested one rounded to 0.001")
-    points: int = Field(description="voxels at or above the level (the point cloud's size)")
-    faces: int = Field(description="marching-cubes triangles of the mesh")
+    points: int = Field(description="points of the surface cloud at that level (the job's own extraction)")
+    faces: int = Field(description="triangles of the mesh (the job's own mesher)")
     origin_offset: list[float] = Field(description="survey coordinates = GLB coordinates + this")
     seconds: float = Field(description="time the extraction took (0 when it was kept from before)")
     mesh_url: str
@@ -58,6 +61,24 @@ router = APIRouter(tags=["results"])
 def _level(threshold: float) -> float:
     steps = min(max(round(threshold / TAU_STEP), 1), round(1 / TAU_STEP) - 1)
     return round(steps * TAU_STEP, 6)
+
+
+def _config(job: Job, tau: float) -> ExtractConfig:
+    """The job's own extraction (its spec's surface and mesher; defaults for older jobs) at ``tau``."""
+    spec = job.spec
+    default = ExtractConfig()
+    return ExtractConfig(threshold=tau, surface=spec.get("surface", default.surface),
+                         mesher=spec.get("mesher", default.mesher))
+
+
+def _sensors(out_dir: Path) -> np.ndarray | None:
+    """(M, 3) transmitter positions, m, that the surface normals face: the thinned ones of the
+    survey view written at validation (the API never opens the survey itself); None without one."""
+    view = out_dir.parent / VIEW_FOLDER / VIEW_NAME
+    if not view.is_file():
+        return None
+    tx = np.asarray(json.loads(view.read_text()).get("tx") or [], dtype=np.float64)
+    return tx.reshape(-1, 3) if tx.size else None
 
 
 def _extract(job: Job, out_dir: Path, method: str, tau: float) -> tuple[dict, Path, bool]:
@@ -76,8 +97,7 @@ def _extract(job: Job, out_dir: Path, method: str, tau: float) -> tuple[dict, Pa
             return json.loads(info_path.read_text()), folder, False
         t0 = time.perf_counter()
         vol = read_volume_npy(vol_path)
-        cloud = point_cloud(vol, tau)
-        surface = mesh(vol, tau, ExtractConfig().close_boundary)
+        _, cloud, surface = extract(vol, _config(job, tau), _sensors(out_dir))
         folder.mkdir(parents=True, exist_ok=True)
         write_point_cloud_ply(cloud, folder / "pointcloud.ply")
         glb = write_mesh_glb(surface, folder / "mesh.glb")

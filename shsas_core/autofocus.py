@@ -55,9 +55,10 @@ from pydantic import BaseModel, ConfigDict, Field
 from .errors import ShsasError
 from .planar import (
     ElevationInfo,
+    FocusResult,
     HeightLevels,
     elevation_info,
-    focus_height,
+    find_focus,
     height_levels,
     plane_grid,
 )
@@ -437,10 +438,11 @@ def _search_points(survey: Survey, cfg: AutofocusConfig, plane_z: float | None) 
     return Grid.over(box, max(cfg.pixels // 2, 8)).points()
 
 
-def search_plane(survey: Survey, signals: np.ndarray, cfg: AutofocusConfig, pings: np.ndarray) -> float:
-    """Height of the plane a planar survey is searched in when ``cfg.plane_z`` is not given, m:
-    the plane of best focus under the input geometry (:func:`shsas_core.planar.focus_height`)."""
-    return focus_height(survey, signals, measure=cfg.measure, pings=pings)
+def search_plane(survey: Survey, signals: np.ndarray, cfg: AutofocusConfig, pings: np.ndarray) -> FocusResult:
+    """The plane a planar survey is searched in when ``cfg.plane_z`` is not given: the plane of
+    best focus under the input geometry (:func:`shsas_core.planar.find_focus`), or the search's
+    edge with ``found`` False when the data hold no focus."""
+    return find_focus(survey, signals, measure=cfg.measure, pings=pings)
 
 
 def autofocus(survey: Survey, signals: np.ndarray | None = None, config: AutofocusConfig | None = None,
@@ -484,7 +486,11 @@ def autofocus(survey: Survey, signals: np.ndarray | None = None, config: Autofoc
     progress(0.0, "autofocus", {})
     if elev.planar:
         if plane_z is None:
-            plane_z = search_plane(survey, signals, cfg, pings)
+            focus = search_plane(survey, signals, cfg, pings)
+            plane_z = focus.z
+            if not focus.found:
+                notes.append(f"no plane of focus found ({focus.reason}); the search image lies at the search's "
+                             f"edge, z = {plane_z:.4f} m, so give --plane-z (the scene plane's known height)")
             notes.append(f"{elev.kind} survey: imaged in the plane of best focus under the input geometry, "
                          f"z = {plane_z:.4f} m; the plane's height, the range offset and the sound speed "
                          "trade off on such a survey, so give --plane-z (the scene plane's known height) "

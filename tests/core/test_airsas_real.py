@@ -145,7 +145,7 @@ def test_report_plane_of_the_wideband_scan(scan, tmp_path):
 @pytest.mark.slow
 def test_report_plane_of_the_band_limited_scan(scan, tmp_path):
     """The same recording filtered to 5 kHz around 20 kHz (34 mm range resolution)."""
-    from .band_limit import band_limited
+    from .narrowband import band_limited
 
     s, _, _ = scan
     narrow = band_limited(s, 20e3, 5e3)
