@@ -161,14 +161,18 @@ def test_survey_view_of_an_hdf5_with_a_large_mesh_never_loads_it_in_the_api(clie
     assert r.status_code == 202, r.text
     job = r.json()
     client.post(f"/reconstructions/{job['id']}/cancel")  # the view does not need the job to run
+    # a worker that took the job before the cancel writes temporaries of its own: wait until it
+    # has stopped, then count only what appears while the view is served
+    wait_for(client, job["id"], lambda j: j["status"] in ("cancelled", "failed", "succeeded"), 120, "the cancel")
     before = rss_kib(server["pid"])
+    base_bytes = tree_bytes(server["tmpdir"])
     with Watch([server["tmpdir"]], server["pid"]) as during:
         view = client.get(f"/reconstructions/{job['id']}/survey")
         glb = client.get(f"/reconstructions/{job['id']}/survey/ground_truth.glb")
     assert view.status_code == 200 and glb.status_code == 200, (view.text, glb.text)
     print(f"meshed HDF5 view: API RSS {before} -> {during.max_rss_kib} KiB")
     assert during.max_rss_kib - before < 50 * 1024, (before, during.max_rss_kib)
-    assert during.max_bytes == 0
+    assert during.max_bytes <= base_bytes, (base_bytes, during.max_bytes)
     v = view.json()
     assert v["summary"]["ground_truth"] == {"vertices": 1_000_000, "faces": 1_000_000}
     assert glb.headers["content-type"] == "model/gltf-binary" and len(glb.content) > 1_000_000
