@@ -26,7 +26,7 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
     SHSAS_DATA_DIR=/data \
     SHSAS_CACHE_DIR=/opt/shsas-cache
 
-# gcc + libc headers: the CPU hash-encoding kernel (shsas_core/fields/hashgrid_cpu.c) is built
+# gcc + libc headers: the CPU hash-encoding kernel (shsas_core/neural/fields/hashgrid_cpu.c) is built
 # with them below; without them CPU training falls back to ~2x slower PyTorch ops.
 RUN apt-get update \
     && apt-get install -y --no-install-recommends libgl1 libglib2.0-0 curl gcc libc6-dev \
@@ -44,7 +44,7 @@ COPY --from=console /src/service/console/static ./service/console/static
 COPY worker ./worker
 RUN pip install ".[service,fast]"
 # build the C kernel once into the image (read-only at run time; the user below can load it)
-RUN python -c "from shsas_core.fields import native; assert native.available(), native._state"
+RUN python -c "from shsas_core.neural.fields import native; assert native.available(), native._state"
 
 # Celery refuses to run as root with some serializers and it is good hygiene anyway.
 RUN useradd --create-home --uid 10001 shsas && mkdir -p /data && chown shsas /data

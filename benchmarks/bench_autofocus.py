@@ -2,7 +2,7 @@
 
 For each case (the real AirSAS cut-out scan, 360 pings, read in place from ../shared, with its
 sound speed put 2 % off; ``narrow``: the same recording band-limited to 5 kHz around 20 kHz) it
-runs :func:`shsas_core.autofocus.autofocus` at the defaults (one unknown, the sound speed, on
+runs :func:`shsas_core.imaging.autofocus.autofocus` at the defaults (one unknown, the sound speed, on
 this single-height scan; three ping subsets) and prints one JSON line per (case, imager): wall
 time, evaluations, the all-ping estimate, what was applied, and whether the data identified it.
 
@@ -34,13 +34,13 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 import torch
 
-from shsas_core import quicklook
-from shsas_core.autofocus import AutofocusConfig, autofocus
-from shsas_core.deconv import deconvolve
-from shsas_core.importers import load_survey
-from shsas_core.planar import focus_height
-from tests.core.focus_scenes import perturbed
-from tests.core.narrowband import band_limited
+from shsas_core.formats import load_survey
+from shsas_core.imaging import quicklook
+from shsas_core.imaging.autofocus import AutofocusConfig, autofocus
+from shsas_core.imaging.planar import focus_height
+from shsas_core.signal.deconv import deconvolve
+from tests.helpers.focus_scenes import perturbed
+from tests.helpers.narrowband import band_limited
 
 AIRSAS = Path(__file__).resolve().parents[2] / "shared" / "data" / "airsas"
 

@@ -3,7 +3,7 @@
 Prints voxel-pings per second (one voxel-ping = one ping's sample added into one voxel) for
 
 * ``reference``: plain PyTorch — broadcast (voxels x pings) distances, gather, interpolate, sum
-  (the approach of the public baseline; :mod:`shsas_core.backprojection_reference`),
+  (the approach of the public baseline; :mod:`shsas_core.imaging._backprojection_reference`),
 * ``eager``: the shsas block kernel run op by op,
 * ``compiled``: the same kernel through ``torch.compile`` (compile time printed separately),
 
@@ -32,8 +32,8 @@ import torch
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from shsas_core.backprojection import BackprojectionConfig, backproject
-from shsas_core.backprojection_reference import reference_backproject
+from shsas_core.imaging._backprojection_reference import reference_backproject
+from shsas_core.imaging.backprojection import BackprojectionConfig, backproject
 
 FS, C, FC = 100e3, 343.0, 20e3
 

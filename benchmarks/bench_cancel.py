@@ -21,9 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from shsas_core.deconv import deconvolve
-from shsas_core.errors import Cancelled
-from shsas_core.survey import Survey, SurveyMeta, default_pulse
+from shsas_core.common.errors import Cancelled
+from shsas_core.data.survey import Survey, SurveyMeta, default_pulse
+from shsas_core.signal.deconv import deconvolve
 
 
 def main() -> None:

@@ -3,10 +3,10 @@
 For each scene: simulate a 20 dB survey (4 circles x 90 pings), Wiener-deconvolve it, train a
 neural field, and print
 
-* the whole-ping data loss (``shsas_core.train.evaluate_data_loss``: every 15th ping, 1024 rays,
+* the whole-ping data loss (``shsas_core.neural.train.evaluate_data_loss``: every 15th ping, 1024 rays,
   least-squares best scale, so an untrained field is not handicapped by its amplitude) before
   and after training, and their ratio (issue 5 asks >= 10x);
-* the surface concentration (``shsas_core.metrics.surface_concentration``): mean |σ_DC| within
+* the surface concentration (``shsas_core.evaluation.metrics.surface_concentration``): mean |σ_DC| within
   1 cm of the true mesh over the mean outside it, on a 48³ grid (1 = flat);
 * the mean training data loss of the first 10 and last 100 iterations, and the wall time.
 
@@ -49,15 +49,16 @@ def main() -> None:
     import torch
 
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-    from shsas_core.deconv import deconvolve
-    from shsas_core.extract import field_volume
-    from shsas_core.fields import FieldConfig, SHField
-    from shsas_core.fields import encoding_preset as encoding_config
-    from shsas_core.metrics import surface_concentration
-    from shsas_core.progress import TqdmProgress
-    from shsas_core.simulate import simulate_shape
-    from shsas_core.train import TrainConfig, evaluate_data_loss, fit
-    from shsas_core.volume import Grid
+    from shsas_core.common.progress import TqdmProgress
+    from shsas_core.data.volume import Grid
+    from shsas_core.evaluation.metrics import surface_concentration
+    from shsas_core.neural.fields import SHField
+    from shsas_core.neural.fields import encoding_preset as encoding_config
+    from shsas_core.neural.fields.config import FieldConfig
+    from shsas_core.neural.fields.volume import field_volume
+    from shsas_core.neural.train import TrainConfig, evaluate_data_loss, fit
+    from shsas_core.signal.deconv import deconvolve
+    from shsas_core.simulation.simulate import simulate_shape
 
     torch.set_num_threads(args.threads)
     print(f"bench_convergence: L={args.degree} iters={args.iters} lr={args.lr}->{args.lr_final} "

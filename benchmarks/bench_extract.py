@@ -11,7 +11,7 @@ extracted twice:
 
 Columns: points in the cloud; pieces = connected mesh components holding 95 % of its area; area =
 mesh area / ground-truth area; F@5mm of the point cloud and of the mesh (20,000 area-weighted
-points of it) against the ground-truth surface sample (``shsas_core.metrics.fscore``); seconds
+points of it) against the ground-truth surface sample (``shsas_core.evaluation.metrics.fscore``); seconds
 of the extraction alone. Never asserts.
 
 Usage::
@@ -44,14 +44,14 @@ def pieces95(mesh) -> int:
 
 def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> list[dict[str, float | str]]:
     """Simulate, backproject and extract ``source`` both ways; one row per extraction."""
-    from shsas_core.backprojection import backproject_survey
-    from shsas_core.deconv import deconvolve
-    from shsas_core.extract import ExtractConfig, extract
-    from shsas_core.metrics import fscore, sample_surface
-    from shsas_core.pipeline import deconv_config
-    from shsas_core.simulate import simulate_shape
-    from shsas_core.spec import ReconstructionSpec
-    from shsas_core.volume import Grid
+    from shsas_core.data.volume import Grid
+    from shsas_core.evaluation.extract import ExtractConfig, extract
+    from shsas_core.evaluation.metrics import fscore, sample_surface
+    from shsas_core.imaging.backprojection import backproject_survey
+    from shsas_core.pipeline.job import deconv_config
+    from shsas_core.signal.deconv import deconvolve
+    from shsas_core.simulation.simulate import simulate_shape
+    from shsas_core.spec.job import ReconstructionSpec
 
     survey = simulate_shape(source, heights=heights, angles=angles, snr_db=20.0, seed=seed)
     s_pd = np.asarray(deconvolve(survey, deconv_config(ReconstructionSpec())), dtype=np.complex64)

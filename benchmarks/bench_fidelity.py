@@ -1,6 +1,6 @@
 """The fidelity scoreboard (issue 12): the product's reconstruction quality under its defaults.
 
-A fixed suite of scenes x survey regimes x methods, each run through ``shsas_core.pipeline.run``
+A fixed suite of scenes x survey regimes x methods, each run through ``shsas_core.pipeline.job.run``
 with ``ReconstructionSpec()`` DEFAULTS (only ``methods``, ``seed`` and ``device`` are set here:
 the benchmark judges the defaults, it tunes nothing). Prints one table per regime with the
 point cloud's and the mesh's surface F1 (the primary score, ``pc_surface_f1``,
@@ -95,18 +95,18 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from shsas_core.export import write_json  # noqa: E402
-from shsas_core.simulate import (  # noqa: E402
+from shsas_core.data.survey import Survey  # noqa: E402
+from shsas_core.outputs.export import write_json  # noqa: E402
+from shsas_core.simulation.simulate import (  # noqa: E402
     ScatteringConfig,
     SimulationConfig,
     TrajectoryConfig,
     config_summary,
 )
-from shsas_core.spec import METHODS, PAPER_SETTINGS, ReconstructionSpec  # noqa: E402
-from shsas_core.survey import Survey  # noqa: E402
-from shsas_core.trajectory import azimuth_arc_indices  # noqa: E402
+from shsas_core.simulation.trajectory import azimuth_arc_indices  # noqa: E402
+from shsas_core.spec.job import METHODS, PAPER_SETTINGS, ReconstructionSpec  # noqa: E402
 
-#: The paper's row: the spec's own preset (declared once in shsas_core.spec).
+#: The paper's row: the spec's own preset (declared once in shsas_core.spec.job).
 PAPER_OVERRIDES: dict[str, Any] = PAPER_SETTINGS
 
 #: Scenes where backprojection is known to fail (thin, lying on a floor, concave, shadowed,
@@ -241,8 +241,9 @@ def survey_key(source: str, cfg: SimulationConfig) -> str:
     parameter and the simulator's source, so a changed mesh, setting or simulator re-simulates."""
     scene = f"file:{_digest_files([Path(source)])}" if Path(source).is_file() else f"shape:{source}"
     code = ROOT / "shsas_core"
-    sim_code = _digest_files(code / f for f in ("simulate.py", "scatterers.py", "trajectory.py",
-                                                 "pulse.py", "shapes.py"))
+    sim_code = _digest_files(code / f for f in ("simulation/simulate.py", "simulation/scatterers.py",
+                                                 "simulation/trajectory.py", "data/pulse.py",
+                                                 "simulation/shapes.py"))
     blob = json.dumps({"scene": scene, "config": config_summary(cfg), "simulator": sim_code},
                       sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
@@ -250,9 +251,9 @@ def survey_key(source: str, cfg: SimulationConfig) -> str:
 
 def cached_survey(scene: str, source: str, cfg: SimulationConfig, cache: Path) -> tuple[Survey, str]:
     """The simulated survey and its cache key, simulated and written once."""
-    from shsas_core.io import read_survey, write_survey
-    from shsas_core.shapes import load_mesh
-    from shsas_core.simulate import simulate
+    from shsas_core.formats.hdf5 import read_survey, write_survey
+    from shsas_core.simulation.shapes import load_mesh
+    from shsas_core.simulation.simulate import simulate
 
     key = survey_key(source, cfg)
     path = cache / f"{scene}-{key}.h5"
@@ -285,7 +286,7 @@ def machine_info(device: str) -> dict[str, Any]:
     """CPU model, cores, torch version, the device runs resolve to and the load at the start."""
     import torch
 
-    from shsas_core.device import resolve_device
+    from shsas_core.common.device import resolve_device
 
     cpu = platform.processor() or platform.machine()
     try:
@@ -390,7 +391,7 @@ def is_current(entry: dict[str, Any], code: str, key: str, spec: ReconstructionS
 
 def measure(method: str, spec: ReconstructionSpec, survey: Survey, out: Path, tag: str) -> dict[str, Any]:
     """One pipeline run: the entry's metrics and times, or its error."""
-    from shsas_core.pipeline import run
+    from shsas_core.pipeline.job import run
 
     print(f"  {tag}: {survey.num_pings} pings ...", flush=True)
     t = time.perf_counter()
@@ -602,7 +603,7 @@ def compare_check(name: str, sh: list[Cell], base: list[Cell], base_label: str, 
 
 def mesh_check(method: str, cells: list[Cell]) -> Check:
     """Every one-piece scene's mesh of ``method`` passes ``metrics.MESH_CHECKS`` on every seed."""
-    from shsas_core.diagnostics import mesh_warnings
+    from shsas_core.evaluation.diagnostics import mesh_warnings
 
     name = f"{LABEL[method]} mesh passes the mesh checks (pieces, area ratio, normals)"
     sel = [c for c in cells if c.scene not in MULTI_PIECE_SCENES]
@@ -748,7 +749,7 @@ def ceiling(scenes: list[str], args: argparse.Namespace) -> None:
     """Print the solid F1 (the paper code's convention) of the ground truth's own surface band per
     scene: what a perfect reconstruction of the surface alone scores against the filled solid
     (the reason the primary score is the surface F1, on which that band at ± 1 voxel scores 1)."""
-    from shsas_core.metrics import GroundTruth, occupancy_scores, within_distance_of_mesh
+    from shsas_core.evaluation.metrics import GroundTruth, occupancy_scores, within_distance_of_mesh
 
     print("| scene | " + " | ".join(f"± {b:g} voxel" for b in CEILING_BANDS) + " | solid share of the box |")
     print("|---|" + "---|" * (len(CEILING_BANDS) + 1))

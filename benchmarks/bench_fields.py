@@ -33,8 +33,9 @@ import time
 
 import torch
 
-from shsas_core.device import resolve_device
-from shsas_core.fields import FieldConfig, SHField, encoding_preset
+from shsas_core.common.device import resolve_device
+from shsas_core.neural.fields import SHField, encoding_preset
+from shsas_core.neural.fields.config import FieldConfig
 
 SIZES = (64 * 1024, 200 * 4800)
 MODES = ("eager", "fused", "fast", "compiled")

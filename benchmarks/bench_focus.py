@@ -3,7 +3,7 @@
 For the real AirSAS cut-out scan (``../shared/data/airsas/cutout_20k`` less ``bg_20k``), the
 same recording filtered to 5 kHz around 20 kHz (``tests/core/narrowband.py``) and a simulated
 narrowband single-height scan of points in one plane (``tests/core/focus_scenes.py``), prints
-what :func:`shsas_core.planar.find_focus` finds with each measure: the height, whether it is
+what :func:`shsas_core.imaging.planar.find_focus` finds with each measure: the height, whether it is
 a focus, the heights searched, the range resolution and the seconds taken.
 
     python benchmarks/bench_focus.py [--measures entropy,contrast] [--only filtered,simulated]
@@ -22,19 +22,19 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from shsas_core.deconv import deconvolve  # noqa: E402
-from shsas_core.planar import find_focus  # noqa: E402
+from shsas_core.imaging.planar import find_focus  # noqa: E402
+from shsas_core.signal.deconv import deconvolve  # noqa: E402
 
 
 def scans() -> list[tuple[str, object, float | None]]:
     """(name, survey, true plane height or None) for each scan that is available."""
-    from tests.core.focus_scenes import NARROW_BAND_HZ, PLANE_Z, plane_scene
-    from tests.core.narrowband import band_limited
+    from tests.helpers.focus_scenes import NARROW_BAND_HZ, PLANE_Z, plane_scene
+    from tests.helpers.narrowband import band_limited
 
     out: list[tuple[str, object, float | None]] = []
     data = ROOT / ".." / "shared" / "data" / "airsas"
     if (data / "cutout_20k").is_dir():
-        from shsas_core.importers import load_survey
+        from shsas_core.formats import load_survey
 
         real = load_survey(data / "cutout_20k", background=data / "bg_20k")
         out += [("AirSAS cut-out, 10-30 kHz", real, None),

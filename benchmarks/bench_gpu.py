@@ -10,7 +10,7 @@ them share the ``--budget-s`` seconds of one call, so a call fits the device too
   ``paper_batch_ms[B]``. A backend that cannot run on the device (``triton`` on a CPU without
   Triton's interpreter) is recorded with the reason instead. Backends already timed in an earlier
   call are not timed again.
-- ``fit``: ``shsas_core.pipeline.run`` of SH-SAS on the scoreboard's dense bunny
+- ``fit``: ``shsas_core.pipeline.job.run`` of SH-SAS on the scoreboard's dense bunny
   (``bench_fidelity``'s dense regime, seed 0) with the paper's settings (``PAPER_SETTINGS``:
   50,000 iterations). The run stops itself ``--budget-s`` seconds into this call (a checkpoint
   is written on the way out) and the next call resumes it from the checkpoints in ``--work``:
@@ -55,11 +55,11 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import bench_fidelity as fid  # noqa: E402
 
-from shsas_core.errors import Cancelled  # noqa: E402
-from shsas_core.export import write_json  # noqa: E402
-from shsas_core.fields.encoding import BACKENDS  # noqa: E402
-from shsas_core.simulate import SimulationConfig, TrajectoryConfig  # noqa: E402
-from shsas_core.spec import PAPER_SETTINGS, ReconstructionSpec  # noqa: E402
+from shsas_core.common.errors import Cancelled  # noqa: E402
+from shsas_core.neural.fields.encoding import BACKENDS  # noqa: E402
+from shsas_core.outputs.export import write_json  # noqa: E402
+from shsas_core.simulation.simulate import SimulationConfig, TrajectoryConfig  # noqa: E402
+from shsas_core.spec.job import PAPER_SETTINGS, ReconstructionSpec  # noqa: E402
 
 STEPS = ("time", "fit", "defaults")
 #: The scoreboard's metrics, in its order (bench_fidelity.COLUMNS) and the pipeline's names.
@@ -160,7 +160,7 @@ def fit(name: str, spec: ReconstructionSpec, data, work: Path, state: dict[str, 
 
     ``state`` (this fit's entry, updated in place) sums wall time and iterations over calls.
     """
-    from shsas_core.pipeline import run
+    from shsas_core.pipeline.job import run
 
     t0 = time.perf_counter()
     seen = {"iters": 0, "it_s": None}

@@ -26,8 +26,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from shsas_core.io import read_survey, summarize, write_survey  # noqa: E402
-from shsas_core.survey import Survey, SurveyMeta, default_pulse  # noqa: E402
+from shsas_core.data.survey import Survey, SurveyMeta, default_pulse  # noqa: E402
+from shsas_core.formats.hdf5 import read_survey, summarize, write_survey  # noqa: E402
 
 N_PINGS, N_SAMPLES = 54_000, 1_500
 

@@ -3,7 +3,7 @@ level rule beat the product's Otsu rule?
 
 Runs nothing new. For every ``<method>_volume.npy`` a ``bench_fidelity.py`` run left under
 ``--out/<profile>/<regime>/<scene>/seed<S>/`` it picks τ by each rule below, thresholds the
-normalised magnitude exactly as ``shsas_core.extract.point_cloud`` does, and scores the cloud
+normalised magnitude exactly as ``shsas_core.evaluation.extract.point_cloud`` does, and scores the cloud
 against the cell's ground truth (its cached survey, design §5). Prints point-cloud surface F1,
 the paper code's solid F1, Chamfer-L2 and F@5mm per volume and rule, then the means over scenes per method, side by side.
 
@@ -44,10 +44,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_fidelity as fid
 
-from shsas_core.export import read_volume_npy
-from shsas_core.extract import PAPER_TAU, choose_threshold, normalize, otsu_threshold, point_cloud
-from shsas_core.metrics import GroundTruth, score_points
-from shsas_core.volume import Grid, Volume
+from shsas_core.data.volume import Grid, Volume
+from shsas_core.evaluation.extract import (
+    PAPER_TAU,
+    choose_threshold,
+    normalize,
+    otsu_threshold,
+    point_cloud,
+)
+from shsas_core.evaluation.metrics import GroundTruth, score_points
+from shsas_core.outputs.export import read_volume_npy
 
 #: Every how many pings a TX position serves as a view for :func:`hidden_voxels` (3,600 -> 515).
 VIEW_STRIDE = 7
@@ -180,7 +186,7 @@ def rescore_hidden(volume: Volume, gt: GroundTruth, views: np.ndarray,
 
 
 def main(argv: list[str] | None = None) -> int:
-    from shsas_core.io import read_survey
+    from shsas_core.formats.hdf5 import read_survey
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(fid.ROOT / "benchmarks" / "out" / "fidelity"),

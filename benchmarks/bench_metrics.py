@@ -4,9 +4,9 @@ and (``--protocol``) what the surface and solid protocols score for ideal predic
 For each case, in the simulator's default scene box (mesh bounds + 2 cm) on 5 mm voxels, builds
 ``metrics.GroundTruth`` (surface sample + occupancy; the occupancy's band test is the cost) with
 
-* ``reference``: the global-radius band search kept in :mod:`shsas_core.metrics_reference`
+* ``reference``: the global-radius band search kept in :mod:`shsas_core.evaluation.metrics_reference`
   (every lookup uses the largest triangle's bounding radius), and
-* ``shsas``: :func:`shsas_core.metrics.within_distance_of_mesh` (per-triangle cells),
+* ``shsas``: :func:`shsas_core.evaluation.metrics.within_distance_of_mesh` (per-triangle cells),
 
 each in a fresh subprocess, so that its peak RSS is its own, under an address-space cap
 (``--cap-gb``) so that a search that would exhaust a shared machine fails with MemoryError
@@ -67,7 +67,7 @@ def load_case(case: str, meshes: Path):
     """(vertices (V, 3) m, faces (F, 3)) of a case."""
     import trimesh
 
-    from shsas_core.shapes import load_mesh
+    from shsas_core.simulation.shapes import load_mesh
 
     if case in CONES:
         radius, height = CONES[case]
@@ -91,12 +91,12 @@ def child(case: str, algorithm: str, cap_gb: float, meshes: Path) -> None:
 
     import numpy as np
 
-    from shsas_core import metrics
-    from shsas_core.metrics_reference import (
+    from shsas_core.evaluation import metrics
+    from shsas_core.evaluation.metrics_reference import (
         reference_candidate_count,
         reference_within_distance_of_mesh,
     )
-    from shsas_core.simulate import default_scene_box
+    from shsas_core.simulation.simulate import default_scene_box
 
     v, f = load_case(case, meshes)
     box = default_scene_box(np.stack([v.min(0), v.max(0)]), 0.02)
@@ -151,15 +151,15 @@ def protocol(meshes: Path) -> None:
     import numpy as np
     import trimesh
 
-    from shsas_core.metrics import (
+    from shsas_core.evaluation.metrics import (
         GroundTruth,
         sample_surface,
         score_mesh,
         score_points,
         within_distance_of_mesh,
     )
-    from shsas_core.shapes import load_mesh
-    from shsas_core.simulate import default_scene_box
+    from shsas_core.simulation.shapes import load_mesh
+    from shsas_core.simulation.simulate import default_scene_box
 
     print("| scene | prediction | surface F1 (primary) | solid F1 (paper code) | F@5mm | F@2.5mm | pieces | area ratio | normal cons. |")
     print("|---|---|---|---|---|---|---|---|---|")

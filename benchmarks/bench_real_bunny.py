@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from shsas_core.align import aligned_scores
-from shsas_core.backprojection import BackprojectionConfig, backproject_survey
-from shsas_core.importers import load_survey
-from shsas_core.volume import Grid, Volume
+from shsas_core.data.volume import Grid, Volume
+from shsas_core.evaluation.align import aligned_scores
+from shsas_core.formats import load_survey
+from shsas_core.imaging.backprojection import BackprojectionConfig, backproject_survey
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 FOLDER = SHARED / "data" / "airsas" / "bunny_20k_deconvolved"
@@ -90,7 +90,7 @@ def score_folder(folder: Path, yaw_starts: int) -> None:
     """Aligned scores of every method's volume in a `shsas reconstruct` output folder."""
     import trimesh
 
-    from shsas_core.survey import SceneBox
+    from shsas_core.data.survey import SceneBox
 
     mesh = trimesh.load(MESH, force="mesh")
     for f in sorted(folder.glob("*_volume.npy")):

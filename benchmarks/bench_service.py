@@ -57,8 +57,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from shsas_core.io import FORMAT_NAME, SCHEMA_VERSION  # noqa: E402
-from shsas_core.survey import SurveyMeta, default_pulse  # noqa: E402
+from shsas_core.data.survey import SurveyMeta, default_pulse  # noqa: E402
+from shsas_core.formats.hdf5 import FORMAT_NAME, SCHEMA_VERSION  # noqa: E402
 
 LONG_SPEC = {"methods": ["shsas"], "iters": 200000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
 
@@ -301,7 +301,7 @@ def report(label: str, lat: list[float], seconds: float) -> None:
 def bench_polling(tmp: Path, clients: int, seconds: float, interval: float, closed_loop: bool,
                   client: str = "httpx") -> None:
     sys.path.insert(0, str(REPO))
-    from shsas_core.io import write_survey
+    from shsas_core.formats.hdf5 import write_survey
     from tests.conftest import make_survey
 
     survey = write_survey(make_survey(), tmp / "tiny.h5")
@@ -511,7 +511,7 @@ async def soak_pollers(base: str, job_id: str, clients: int, end: float, interva
 def bench_soak(tmp: Path, seconds: float, clients: int, interval: float, api_workers: int) -> None:
     import zipfile
 
-    from shsas_core.io import write_survey
+    from shsas_core.formats.hdf5 import write_survey
     from tests.conftest import make_survey
 
     survey = write_survey(make_survey(), tmp / "tiny.h5")

@@ -33,9 +33,9 @@ def accuracy() -> None:
     """Print the delay accuracy figures quoted in docs/simulation.md."""
     from scipy import signal as ssig
 
-    from shsas_core.pulse import lfm_pulse
-    from shsas_core.scatterers import Scatterers
-    from shsas_core.simulate import SimulationConfig, TrajectoryConfig, simulate
+    from shsas_core.data.pulse import lfm_pulse
+    from shsas_core.simulation.scatterers import Scatterers
+    from shsas_core.simulation.simulate import SimulationConfig, TrajectoryConfig, simulate
 
     c, fs = 343.0, 100e3
     pulse = lfm_pulse(10e3, 30e3, 1e-3, fs)
@@ -87,8 +87,8 @@ def main() -> None:
 
     import trimesh
 
-    from shsas_core.shapes import load_mesh
-    from shsas_core.simulate import SimulationConfig, TrajectoryConfig, simulate
+    from shsas_core.simulation.shapes import load_mesh
+    from shsas_core.simulation.simulate import SimulationConfig, TrajectoryConfig, simulate
 
     mesh = load_mesh(args.mesh or find_bunny())
     heights = args.heights or (150 if args.full else 10)
@@ -113,7 +113,7 @@ def main() -> None:
     print(f"cpu time: {cpu:.1f} s (all threads)   load average now: {os.getloadavg()[0]:.1f}")
     if args.write:
         t = time.perf_counter()
-        from shsas_core.io import write_survey
+        from shsas_core.formats.hdf5 import write_survey
 
         write_survey(s, args.write)
         print(f"write: {time.perf_counter() - t:.1f} s -> {args.write}")

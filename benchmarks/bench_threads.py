@@ -6,7 +6,7 @@ subprocess whose CPU affinity is ``--cpus`` (default: every CPU this process may
 - ``machine``: torch's pool sized to the machine's core count (``os.cpu_count()``), what a
   worker gets from a library that looks at the machine (the job's threads outnumber its CPUs
   whenever it owns fewer than all of them);
-- ``owned``: ``shsas_core.threads.size_thread_pools()``, what the workers do: the affinity set,
+- ``owned``: ``shsas_core.common.threads.size_thread_pools()``, what the workers do: the affinity set,
   capped by the cgroup CPU quota;
 - ``1``: one thread, for reference.
 
@@ -38,11 +38,11 @@ def _child(args: argparse.Namespace) -> dict:
     import torch
 
     sys.path.insert(0, str(REPO))
-    from shsas_core.io import write_survey
-    from shsas_core.pipeline import run
-    from shsas_core.simulate import simulate_shape
-    from shsas_core.spec import ReconstructionSpec
-    from shsas_core.threads import size_thread_pools
+    from shsas_core.common.threads import size_thread_pools
+    from shsas_core.formats.hdf5 import write_survey
+    from shsas_core.pipeline.job import run
+    from shsas_core.simulation.simulate import simulate_shape
+    from shsas_core.spec.job import ReconstructionSpec
 
     if args.case == "machine":
         torch.set_num_threads(os.cpu_count() or 1)

@@ -1,13 +1,13 @@
 """Milliseconds per training iteration: fast path vs eager reference, side by side.
 
 fast  = FieldConfig.backend="native" (batched hash encoding + analytic normals, one first-order
-        backward; on CPU the encoding runs in the C kernel of shsas_core/fields/native.py) +
+        backward; on CPU the encoding runs in the C kernel of shsas_core/neural/fields/native.py) +
         RenderConfig.backend="fast" (focal closed-form intersection, cumsum transmittance)
 eager = FieldConfig.backend="reference" (per-level encoding, normals by double backward) +
         RenderConfig.backend="reference" (ellipsoid-frame quadric, cumprod transmittance)
 
 One iteration = sample bins and rays, render with normals (Lambertian) and two-way
-transmittance, ToF loss, backward, Adam step — the body of ``shsas_core.train.fit``. Each
+transmittance, ToF loss, backward, Adam step — the body of ``shsas_core.neural.train.fit``. Each
 configuration runs in its own subprocess so peak memory (CPU: max RSS; CUDA: max allocated) is
 its own. Usage:
 
@@ -40,10 +40,11 @@ def _one(args: argparse.Namespace) -> dict:
 
     torch.set_num_threads(args.threads)
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-    from shsas_core.fields import FieldConfig, SHField, encoding_preset
-    from shsas_core.render import RenderConfig
-    from shsas_core.survey import SceneBox, Survey, SurveyMeta, default_pulse
-    from shsas_core.train import (
+    from shsas_core.data.survey import SceneBox, Survey, SurveyMeta, default_pulse
+    from shsas_core.neural.fields import SHField, encoding_preset
+    from shsas_core.neural.fields.config import FieldConfig
+    from shsas_core.neural.render import RenderConfig
+    from shsas_core.neural.train import (
         TrainConfig,
         _Amplitude,
         _batch,
@@ -87,7 +88,7 @@ def _one(args: argparse.Namespace) -> dict:
         loss.backward()
         opt.step()
 
-    from shsas_core.heap import heap_cache
+    from shsas_core.common.heap import heap_cache
 
     times = []
     # as in fit(): freed CPU buffers stay in the heap (--no-heap-cache: glibc's default mmap/munmap)
@@ -168,7 +169,7 @@ def main() -> None:
     if args.no_native:
         os.environ["SHSAS_NATIVE"] = "0"  # inherited by the per-case subprocesses
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
-    from shsas_core.fields import native
+    from shsas_core.neural.fields import native
 
     kernel = "PyTorch fused ops" if not native.available() else "C kernel (hashgrid_cpu.c)"
     print(f"bench_train: fast-path encoding on CPU: {kernel}"

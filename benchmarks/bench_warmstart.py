@@ -1,10 +1,10 @@
 """Does a short neural fit end no worse than the backprojection image it starts from? (issue 12)
 
 The pipeline starts each neural method from the job's backprojection image (distilled into the
-field, ``shsas_core.warmstart``) and then fits it to the time-of-flight data. This benchmark runs
+field, ``shsas_core.neural.warmstart``) and then fits it to the time-of-flight data. This benchmark runs
 that chain, as ``pipeline._fit_neural`` does with the spec defaults, on a small survey and scores
 three clouds against the ground truth with the scoreboard's rule (Otsu level, the metrics of
-``shsas_core.metrics``): the backprojection image, the started field and the fitted field (the
+``shsas_core.evaluation.metrics``): the backprojection image, the started field and the fitted field (the
 two fields inside the occupancy mask the fit uses, as the pipeline extracts them). It prints
 them side by side per scene and seed: the surface F1 (the primary score) with its precision /
 recall, the paper code's solid F1, F@5mm, and the fit's data-loss ratio (mean of the last 15
@@ -15,7 +15,7 @@ The small survey is a circle of ``--heights`` x ``--angles`` pings at 20 dB, sco
 and ``armadillo`` (as in ``bench_fidelity.py``) and the built-in shapes. The seed is the survey's
 and the training's, as in the fidelity benchmark.
 
-``tests/core/test_warmstart.py`` runs :func:`warm_start_case` on the bunny at seed 0 (its
+``tests/core/neural/test_warmstart.py`` runs :func:`warm_start_case` on the bunny at seed 0 (its
 guarantee was measured on the solid F1; the bunny's mesh is open underneath, so its solid
 occupancy is its one-voxel surface band, filled only where the band closes).
 
@@ -62,18 +62,20 @@ def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 
     the image, the started field and the fitted field against the ground truth."""
     import torch
 
-    from shsas_core.backprojection import backproject_survey
-    from shsas_core.deconv import deconvolve, point_spread
-    from shsas_core.extract import extract, field_volume
-    from shsas_core.fields import FieldConfig, SHField, encoding_preset
-    from shsas_core.fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
-    from shsas_core.metrics import GroundTruth, score_points
-    from shsas_core.pipeline import deconv_config, train_config
-    from shsas_core.simulate import simulate_shape
-    from shsas_core.spec import ReconstructionSpec
-    from shsas_core.train import coarse_start_levels, fit
-    from shsas_core.volume import Grid, Volume
-    from shsas_core.warmstart import WarmStartConfig, distill
+    from shsas_core.data.volume import Grid, Volume
+    from shsas_core.evaluation.extract import extract
+    from shsas_core.evaluation.metrics import GroundTruth, score_points
+    from shsas_core.imaging.backprojection import backproject_survey
+    from shsas_core.neural.fields import SHField, encoding_preset
+    from shsas_core.neural.fields.config import FieldConfig
+    from shsas_core.neural.fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
+    from shsas_core.neural.fields.volume import field_volume
+    from shsas_core.neural.train import coarse_start_levels, fit
+    from shsas_core.neural.warmstart import WarmStartConfig, distill
+    from shsas_core.pipeline.job import deconv_config, train_config
+    from shsas_core.signal.deconv import deconvolve, point_spread
+    from shsas_core.simulation.simulate import simulate_shape
+    from shsas_core.spec.job import ReconstructionSpec
 
     spec = ReconstructionSpec(iters=iters, seed=seed)
     survey = simulate_shape(source, heights=heights, angles=angles, snr_db=20.0, seed=seed)

@@ -36,8 +36,8 @@ for step in "${steps[@]}"; do
     gputests)  # the gpu-marked tests and the core files that touch CUDA, verbose
       timeout 300 $PY -m pytest tests/core -m gpu --device cuda -q -p no:cacheprovider \
         --timeout 200 2>&1 | grep -v DEBUG | tail -60 | tee "$OUT/gputests.txt"
-      timeout 300 $PY -m pytest tests/core/test_native.py tests/core/test_occupancy.py \
-        tests/core/test_sh.py tests/core/test_train.py tests/core/test_fields.py --device cuda -q \
+      timeout 300 $PY -m pytest tests/core/neural/test_native.py tests/core/neural/test_occupancy.py \
+        tests/core/neural/test_sh.py tests/core/neural/test_train.py tests/core/neural/test_fields.py --device cuda -q \
         -p no:cacheprovider -n 8 --timeout 200 2>&1 | tail -80 | tee "$OUT/coretests.txt" ;;
     bp)  # side by side (reference, eager, compiled, triton), then the AirSAS-scale case for real
       timeout 300 $PY benchmarks/bench_backprojection.py --device cuda --grid 96 --pings 1024 \
@@ -46,7 +46,7 @@ for step in "${steps[@]}"; do
       timeout 150 $PY benchmarks/bench_fidelity.py --regimes dense --scenes bunny --device cuda \
         --out /tmp/fidelity 2>&1 | tail -60 | tee "$OUT/fidelity.txt" ;;
     tritontest)
-      timeout 60 $PY -m pytest tests/core/test_backprojection.py -k triton --device cuda -q \
+      timeout 60 $PY -m pytest tests/core/imaging/test_backprojection.py -k triton --device cuda -q \
         -p no:cacheprovider 2>&1 | grep -v DEBUG | tail -30 | tee "$OUT/tritontest.txt" ;;
     train_paper)  # the paper batch alone: fast path, then a few eager iterations (~s each)
       timeout 80 $PY benchmarks/bench_train.py --device cuda --cases paper --modes fast --iters 30 \
@@ -54,7 +54,7 @@ for step in "${steps[@]}"; do
       timeout 90 $PY benchmarks/bench_train.py --device cuda --cases paper --modes eager --iters 3 \
         --warmup 1 2>&1 | tee -a "$OUT/train_paper.txt" ;;
     paper)  # the paper's settings on the dense bunny, ${PAPER_ITERS} iterations (not the paper's 50k)
-      spec=$($PY -c "import json; from shsas_core.spec import PAPER_SETTINGS as p; \
+      spec=$($PY -c "import json; from shsas_core.spec.job import PAPER_SETTINGS as p; \
         print(json.dumps({**p, 'iters': int('${PAPER_ITERS:-3000}')}))")
       timeout 170 $PY benchmarks/bench_fidelity.py --regimes dense --scenes bunny --methods shsas \
         --device cuda --dev-spec "$spec" --out /tmp/fidelity 2>&1 | tail -40 | tee "$OUT/paper.txt" ;;

@@ -2,8 +2,8 @@
 
 For each scene (the Stanford bunny from ../shared/data/meshes and the built-in shapes), simulate
 a circular AirSAS-like survey at 20 dB, reconstruct it with backprojection, Reed et al. (L = 0)
-and SH-SAS (L = 3) through ``shsas_core.pipeline.run`` and score the point cloud and the mesh
-with the metrics of shsas_core/metrics.py (surface F1 first; the paper code's solid F1 as a
+and SH-SAS (L = 3) through ``shsas_core.pipeline.job.run`` and score the point cloud and the mesh
+with the metrics of shsas_core/evaluation/metrics.py (surface F1 first; the paper code's solid F1 as a
 secondary column; the mesh's pieces, area ratio and normal consistency). Then a sparse-view run (20 % of the pings, seeded) and an SH-degree
 ablation (L = 1, 2, 3) on the first scene. Prints markdown tables; never asserts.
 
@@ -30,10 +30,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from shsas_core.pipeline import run  # noqa: E402
-from shsas_core.simulate import simulate_shape  # noqa: E402
-from shsas_core.spec import ReconstructionSpec  # noqa: E402
-from shsas_core.trajectory import TrajectoryConfig  # noqa: E402
+from shsas_core.pipeline.job import run  # noqa: E402
+from shsas_core.simulation.simulate import simulate_shape  # noqa: E402
+from shsas_core.simulation.trajectory import TrajectoryConfig  # noqa: E402
+from shsas_core.spec.job import ReconstructionSpec  # noqa: E402
 
 #: The columns (metric key, header, format): the primary surface F1 first, the paper code's
 #: solid F1 as a secondary column, then the mesh's quality (mesh rows only).
@@ -54,7 +54,7 @@ def shared_mesh(name: str) -> str | None:
 
 
 def scene_source(name: str) -> str:
-    from shsas_core.shapes import SHAPES
+    from shsas_core.simulation.shapes import SHAPES
 
     if name in SHAPES:
         return name

@@ -20,7 +20,7 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
-from shsas_core.spec import ReconstructionSpec
+from shsas_core.spec.job import ReconstructionSpec
 from worker.reconciler import Reconciler
 from worker.settings import Settings, get_settings
 from worker.store import JobStore

@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from shsas_core.errors import ShsasError
+    from shsas_core.common.errors import ShsasError
 
     if args.data_dir:
         os.environ["SHSAS_DATA_DIR"] = args.data_dir

@@ -19,10 +19,15 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
-from shsas_core.export import read_volume_npy, write_json, write_mesh_glb, write_point_cloud_ply
-from shsas_core.extract import ExtractConfig, extract
-from shsas_core.pipeline import artifact_names
-from shsas_core.spec import Method
+from shsas_core.evaluation.extract import ExtractConfig, extract
+from shsas_core.outputs.export import (
+    read_volume_npy,
+    write_json,
+    write_mesh_glb,
+    write_point_cloud_ply,
+)
+from shsas_core.pipeline.job import artifact_names
+from shsas_core.spec.job import Method
 from worker.runner import job_paths
 from worker.store import Job
 

@@ -8,7 +8,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
-from shsas_core.diagnostics import ResultWarning
+from shsas_core.evaluation.diagnostics import ResultWarning
 from worker.store import Job
 
 from .status import LiveStatus

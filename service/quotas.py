@@ -11,11 +11,11 @@ from contextlib import AsyncExitStack
 
 from anyio import to_thread
 
-from shsas_core.cost import cpu_job_seconds
-from shsas_core.methods import NEURAL
-from shsas_core.spec import ReconstructionSpec
-from shsas_core.survey import SceneBox
-from shsas_core.volume import auto_grid_count
+from shsas_core.data.survey import SceneBox
+from shsas_core.data.volume import auto_grid_count
+from shsas_core.spec.catalogue import NEURAL
+from shsas_core.spec.cost import cpu_job_seconds
+from shsas_core.spec.job import ReconstructionSpec
 from worker.settings import Settings
 from worker.store import JobStore
 

@@ -62,10 +62,10 @@ def write_view(survey, summary: dict[str, Any], rows: np.ndarray | None, folder:
     """Write ``folder/survey.json`` (and ``ground_truth.glb``); return the view.
 
     Args:
-        survey: the :class:`~shsas_core.survey.Survey` (header and geometry; samples not needed).
+        survey: the :class:`~shsas_core.data.survey.Survey` (header and geometry; samples not needed).
         rows: the samples of the pings :func:`ping_indices` names, (k, T), or None.
     """
-    from shsas_core.export import write_json
+    from shsas_core.outputs.export import write_json
 
     keep = evenly(survey.num_pings, MAX_POSITIONS)
     idx = ping_indices(survey.num_pings)
@@ -81,7 +81,7 @@ def write_view(survey, summary: dict[str, Any], rows: np.ndarray | None, folder:
     if survey.has_ground_truth:
         import trimesh
 
-        from shsas_core.export import write_mesh_glb
+        from shsas_core.outputs.export import write_mesh_glb
 
         gt = trimesh.Trimesh(survey.gt_vertices, survey.gt_faces, process=False)
         view["ground_truth_origin_offset"] = write_mesh_glb(gt, folder / GROUND_TRUTH_NAME)["origin_offset"]

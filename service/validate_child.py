@@ -32,7 +32,7 @@ def _scan_samples_finite(path: str) -> None:
     import h5py
     import numpy as np
 
-    from shsas_core.errors import SurveyValidationError
+    from shsas_core.common.errors import SurveyValidationError
 
     with h5py.File(path, "r") as f:
         ds = f["pings/samples"]
@@ -50,8 +50,8 @@ def _check_memory(survey, cfg: dict) -> None:
     """Refuse a job the workers could not hold, from the declared sizes alone."""
     if cfg.get("budget") is None or cfg.get("spec") is None:
         return
-    from shsas_core.memory import check_job_memory
-    from shsas_core.spec import ReconstructionSpec
+    from shsas_core.spec.job import ReconstructionSpec
+    from shsas_core.spec.memory import check_job_memory
 
     check_job_memory(survey, ReconstructionSpec.model_validate_json(cfg["spec"]), int(cfg["budget"]))
 
@@ -59,8 +59,8 @@ def _check_memory(survey, cfg: dict) -> None:
 def _check_parts(path: str, cfg: dict) -> list[str]:
     """Refuse a ground-truth mesh or /extras over the upload caps, from their declared shapes
     (before either is read); return the names of the extras."""
-    from shsas_core.errors import ShsasError
-    from shsas_core.io import declared_parts
+    from shsas_core.common.errors import ShsasError
+    from shsas_core.formats.hdf5 import declared_parts
 
     class TooLarge(ShsasError):
         http_status = 413
@@ -94,9 +94,9 @@ def validate(path: str, cfg: dict) -> dict:
 
     import numpy as np
 
-    from shsas_core.errors import ShsasError, SurveyValidationError
-    from shsas_core.importers import detect_format, load_survey
-    from shsas_core.io import read_survey, summarize, write_survey
+    from shsas_core.common.errors import ShsasError, SurveyValidationError
+    from shsas_core.formats import detect_format, load_survey
+    from shsas_core.formats.hdf5 import read_survey, summarize, write_survey
 
     from .survey_view import FOLDER, ping_indices, write_view
 
@@ -152,15 +152,15 @@ def main() -> int:
         import h5py  # noqa: F401
         import numpy  # noqa: F401
 
-        import shsas_core.importers
-        import shsas_core.io  # noqa: F401
+        import shsas_core.formats
+        import shsas_core.formats.hdf5  # noqa: F401
     except (ImportError, MemoryError, OSError) as exc:
         sys.stdout.write(json.dumps({"ok": False, "status": 413, "error": (
             "survey: the validator cannot start within SHSAS_VALIDATE_MEMORY_BYTES="
             f"{memory_bytes}; raise it ({type(exc).__name__})")}) + "\n")
         return 0
     try:
-        from shsas_core.errors import ShsasError
+        from shsas_core.common.errors import ShsasError
 
         try:
             out = {"ok": True, **validate(path, cfg)}

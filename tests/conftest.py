@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from shsas_core.survey import Survey, SurveyMeta, default_pulse
+from shsas_core.data.survey import Survey, SurveyMeta, default_pulse
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

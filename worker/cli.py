@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from shsas_core.errors import ShsasError
+    from shsas_core.common.errors import ShsasError
 
     if args.gpu is not None:
         if not args.gpu.isdigit():

@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _store():
-    from shsas_core.errors import ShsasError
+    from shsas_core.common.errors import ShsasError
 
     try:
         from worker.settings import get_settings
@@ -59,7 +59,7 @@ def list_keys(args: argparse.Namespace) -> int:
 
 
 def revoke(args: argparse.Namespace) -> int:
-    from shsas_core.errors import ShsasError
+    from shsas_core.common.errors import ShsasError
 
     if not _store().revoke_key(args.key_id):
         raise ShsasError(f"keys: no active key with id {args.key_id!r} (see `shsas keys list`)")

@@ -59,7 +59,7 @@ def _watch_parent(parent_pid: int) -> None:
 
 def run_local_worker(parent_pid: int | None = None) -> None:
     """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
-    from shsas_core.threads import size_thread_pools
+    from shsas_core.common.threads import size_thread_pools
 
     from .logs import configure_logging
     from .priority import lower_priority

@@ -17,15 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-from shsas_core.atomic import atomic_path
-from shsas_core.export import (
+from shsas_core.common.atomic import atomic_path
+from shsas_core.evaluation.extract import PointCloud
+from shsas_core.outputs.export import (
     SCALAR_NAME,
     _empty_glb,
     glb_offset,
     read_point_cloud_ply,
     write_point_cloud_ply,
 )
-from shsas_core.extract import PointCloud
 
 log = logging.getLogger("shsas.worker")
 

@@ -1,11 +1,11 @@
-"""Run one job: claim its lease, call ``shsas_core.pipeline.run``, keep the job row current.
+"""Run one job: claim its lease, call ``shsas_core.pipeline.job.run``, keep the job row current.
 
 Shared by the Celery task and the embedded local worker. The job row is the source of truth:
 the runner only acts while it holds the lease, writes progress and heartbeats to the row,
 reads ``cancel_requested`` from it, and finishes the job with one conditional UPDATE.
 
 A re-delivered job runs again in the same ``out_dir``; the pipeline's checkpoints make that a
-resume, and files it left half-written are removed first (``shsas_core.atomic.remove_partials``).
+resume, and files it left half-written are removed first (``shsas_core.common.atomic.remove_partials``).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import uuid
 from collections.abc import Mapping
 from pathlib import Path
 
-from shsas_core.atomic import is_partial, remove_partials
+from shsas_core.common.atomic import is_partial, remove_partials
 
 from .periodic import Periodic
 from .previews import write_previews
@@ -169,9 +169,9 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
     log.info("job %s attempt %d on %s", job.id, job.attempts, owner)
     ctl = JobControl(store, settings, job, owner).start()
     try:
-        from shsas_core.errors import Cancelled, ShsasError
-        from shsas_core.pipeline import run
-        from shsas_core.spec import ReconstructionSpec
+        from shsas_core.common.errors import Cancelled, ShsasError
+        from shsas_core.pipeline.job import run
+        from shsas_core.spec.job import ReconstructionSpec
 
         spec = ReconstructionSpec.model_validate(job.spec)
         try:

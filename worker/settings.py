@@ -12,7 +12,7 @@ from pathlib import Path
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from shsas_core.memory import DEFAULT_FRACTION, default_memory_budget
+from shsas_core.spec.memory import DEFAULT_FRACTION, default_memory_budget
 
 GiB = 1024**3
 
@@ -79,7 +79,7 @@ class Settings(BaseSettings):
 
     max_cpu_job_s: float | None = Field(
         None, gt=0, description="a job for the CPU queue whose estimated run time on a CPU "
-        "(shsas_core/cost.py) is over this gets 422 at submission; unset: SHSAS_JOB_SOFT_TIME_LIMIT_S, "
+        "(shsas_core/spec/cost.py) is over this gets 422 at submission; unset: SHSAS_JOB_SOFT_TIME_LIMIT_S, "
         "past which the job would be stopped anyway")
     allow_default_spec: bool = Field(
         False, description="accept a submission without a `spec` field as the default spec; "

@@ -30,7 +30,7 @@ def _pool_child_start(**_) -> None:
     """In each pool child, before it runs a task: the service log format, a lower CPU priority
     than the API and thread pools sized to the CPUs it owns (the child is where the job's
     threads run)."""
-    from shsas_core.threads import size_thread_pools
+    from shsas_core.common.threads import size_thread_pools
 
     from .logs import configure_logging
     from .priority import lower_priority

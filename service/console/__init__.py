@@ -14,7 +14,7 @@ from fastapi import APIRouter, FastAPI, HTTPException
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from shsas_core.spec import ReconstructionSpec
+from shsas_core.spec.job import ReconstructionSpec
 
 #: Where `make console` writes the built page (package data; git-ignored).
 STATIC = Path(__file__).resolve().parent / "static"

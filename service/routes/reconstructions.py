@@ -17,8 +17,8 @@ from anyio import to_thread
 from fastapi import APIRouter, Header, HTTPException, Query, Request
 from fastapi.responses import JSONResponse, Response
 
-from shsas_core.errors import pydantic_fix
-from shsas_core.spec import ReconstructionSpec
+from shsas_core.common.errors import pydantic_fix
+from shsas_core.spec.job import ReconstructionSpec
 from worker.dispatch import dispatch
 from worker.runner import job_paths, remove_job_files
 from worker.store import ORDERS, STATUSES, IdempotencyConflict, Job
@@ -50,7 +50,7 @@ def spec_error(exc: pydantic.ValidationError) -> str:
     for err in exc.errors()[:5]:
         loc = ".".join(str(p) for p in err["loc"])
         got = f" (got {err['input']!r})" if "input" in err and err["type"] != "json_invalid" else ""
-        fix = pydantic_fix(err, list(ReconstructionSpec.model_fields), "the ReconstructionSpec, shsas_core/spec.py")
+        fix = pydantic_fix(err, list(ReconstructionSpec.model_fields), "the ReconstructionSpec, shsas_core/spec/job.py")
         parts.append(f"spec{'.' + loc if loc else ''}: {err['msg']}{got}"[:300] + f" (fix: {fix})")
     return "; ".join(parts)
 

@@ -14,8 +14,8 @@ import argparse
 import importlib
 import sys
 
-from .. import __version__
-from ..errors import Cancelled, ShsasError
+from shsas_core import __version__
+from shsas_core.common.errors import Cancelled, ShsasError
 
 #: Subcommand modules of this package, in the order of the help text (data flow order).
 CORE_COMMANDS = ["info", "convert", "edit", "simulate", "autofocus", "backproject", "fit", "reconstruct",

@@ -48,10 +48,10 @@ def run(args: argparse.Namespace) -> int:
 
     import pydantic
 
-    from ..autofocus import PARAMETERS, AutofocusConfig, apply_result, autofocus
-    from ..errors import ShsasError, pydantic_fix
-    from ..importers import load_survey
-    from ..io import write_survey
+    from shsas_core.common.errors import ShsasError, pydantic_fix
+    from shsas_core.formats import load_survey
+    from shsas_core.formats.hdf5 import write_survey
+    from shsas_core.imaging.autofocus import PARAMETERS, AutofocusConfig, apply_result, autofocus
 
     params = None
     if args.params is not None:

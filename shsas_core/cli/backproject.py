@@ -43,14 +43,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..backprojection import BackprojectionConfig, backproject_survey, save_volume
-    from ..deconv import DeconvConfig, deconvolve
-    from ..device import resolve_device
-    from ..errors import ShsasError
-    from ..importers import load_survey
-    from ..progress import TqdmProgress
-    from ..signal import analytic_samples, matched_filter
-    from ..volume import Grid
+    from shsas_core.common.device import resolve_device
+    from shsas_core.common.errors import ShsasError
+    from shsas_core.common.progress import TqdmProgress
+    from shsas_core.data.volume import Grid
+    from shsas_core.formats import load_survey
+    from shsas_core.imaging.backprojection import (
+        BackprojectionConfig,
+        backproject_survey,
+        save_volume,
+    )
+    from shsas_core.signal.chain import analytic_samples, matched_filter
+    from shsas_core.signal.deconv import DeconvConfig, deconvolve
 
     _check_grid(args.grid)
     if not 1 <= args.upsample <= 32:
@@ -90,11 +94,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_grid(count: int) -> None:
-    """The job spec's grid bounds (shsas_core.options.GridCount), one line naming the option."""
+    """The job spec's grid bounds (shsas_core.spec.options.GridCount), one line naming the option."""
     from pydantic import TypeAdapter, ValidationError
 
-    from ..errors import ShsasError
-    from ..options import GridCount
+    from shsas_core.common.errors import ShsasError
+    from shsas_core.spec.options import GridCount
 
     try:
         TypeAdapter(GridCount).validate_python(count)

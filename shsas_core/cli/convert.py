@@ -30,8 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..importers import load_survey
-    from ..io import write_survey
+    from shsas_core.formats import load_survey
+    from shsas_core.formats.hdf5 import write_survey
 
     options = {}
     if args.background is not None:
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
         options["geometry"] = args.geometry
     import sys
 
-    from ..progress import TqdmProgress
+    from shsas_core.common.progress import TqdmProgress
 
     # the bar goes to stderr; keep stderr to the one-line error when it is not a terminal
     bar = TqdmProgress(disable=not sys.stderr.isatty())

@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from .reconstruct import add_spec_options, console, print_result, spec_from_args
+from shsas_core.cli.reconstruct import add_spec_options, console, print_result, spec_from_args
 
 #: A survey dense enough that every method's projections and meshes show the shape (the 4 x 90
 #: pings of the first demo did not). The reconstruction runs the product defaults
@@ -37,10 +37,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io import write_survey
-    from ..pipeline import run as run_pipeline
-    from ..progress import TqdmProgress
-    from ..simulate import simulate_shape
+    from shsas_core.common.progress import TqdmProgress
+    from shsas_core.formats.hdf5 import write_survey
+    from shsas_core.pipeline.job import run as run_pipeline
+    from shsas_core.simulation.simulate import simulate_shape
 
     con = console()
     spec = spec_from_args(args)

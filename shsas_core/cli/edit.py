@@ -6,7 +6,7 @@ import argparse
 
 
 def _numbers(text: str, what: str, count: int | None = None) -> list[float]:
-    from ..errors import ShsasError
+    from shsas_core.common.errors import ShsasError
 
     try:
         values = [float(v) for v in text.split(",") if v.strip()]
@@ -19,7 +19,7 @@ def _numbers(text: str, what: str, count: int | None = None) -> list[float]:
 
 def _indices(text: str) -> list[int]:
     """``"0,3,7"`` or a range ``"0:150:10"`` (start:stop[:step], stop excluded)."""
-    from ..errors import ShsasError
+    from shsas_core.common.errors import ShsasError
 
     try:
         if ":" in text:
@@ -69,10 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import edit
-    from ..errors import ShsasError
-    from ..io import read_survey, write_survey
-    from ..survey import SceneBox
+    from shsas_core.common.errors import ShsasError
+    from shsas_core.data import edit
+    from shsas_core.data.survey import SceneBox
+    from shsas_core.formats.hdf5 import read_survey, write_survey
 
     edits = [args.sound_speed, args.range_offset, args.box, args.level_z, args.levels, args.every, args.count]
     if all(e is None for e in edits):

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ..errors import ShsasError
+from shsas_core.common.errors import ShsasError
 
 #: Margin around the GT mesh bounds for the occupancy box when no scene box is known, m.
 GT_BOX_MARGIN = 0.02
@@ -15,7 +15,7 @@ GT_BOX_MARGIN = 0.02
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "evaluate", help="score reconstructions against a ground-truth mesh (surface F1, F-score, Chamfer, mesh quality)",
-        description="Score existing outputs with the project's metrics (shsas_core/metrics.py): surface "
+        description="Score existing outputs with the project's metrics (shsas_core/evaluation/metrics.py): surface "
         "IoU/precision/recall/F1 on 5 mm voxels over the scene box (voxels within 5 mm of the surface; "
         "the primary score), F-score at 5 mm and 2.5 mm and Chamfer-L2 (m²) / Chamfer-L1 (m) against "
         "20,000 area-weighted GT surface samples, the paper code's solid F1, and for meshes pieces, area "
@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _load_gt(path: str):
     """(vertices, faces, scene box or None) from a mesh or a survey file."""
-    from ..shapes import SHAPES, load_mesh
+    from shsas_core.simulation.shapes import SHAPES, load_mesh
 
     p = Path(path)
     if not p.exists():
@@ -46,7 +46,7 @@ def _load_gt(path: str):
             return m.vertices, m.faces, None
         raise ShsasError(f"--gt: '{p}' does not exist")
     if p.suffix.lower() in (".h5", ".hdf5") or p.is_dir():
-        from ..importers import load_survey
+        from shsas_core.formats import load_survey
 
         s = load_survey(p, load_samples=False)
         if not s.has_ground_truth:
@@ -64,7 +64,7 @@ def _load_target(path: Path):
     if path.suffix.lower() == ".ply":
         head = path.read_bytes()[:4096]
         if b"element face" not in head or b"element face 0\n" in head:
-            from ..export import read_point_cloud_ply
+            from shsas_core.outputs.export import read_point_cloud_ply
 
             d = read_point_cloud_ply(path)
             return np.stack([d["x"], d["y"], d["z"]], 1), None
@@ -80,7 +80,7 @@ def _load_target(path: Path):
 def _box_from(target: Path, box_opt: str | None, gt_box, vertices):
     import numpy as np
 
-    from ..survey import SceneBox
+    from shsas_core.data.survey import SceneBox
 
     if box_opt:
         try:
@@ -103,7 +103,7 @@ def _box_from(target: Path, box_opt: str | None, gt_box, vertices):
 
 def evaluate_target(target: str | Path, gt: str, box: str | None = None) -> dict[str, dict[str, float]]:
     """``{name: {pc_*/mesh_* metric: value}}`` for an output folder or a single file."""
-    from ..metrics import GroundTruth, score_reconstruction
+    from shsas_core.evaluation.metrics import GroundTruth, score_reconstruction
 
     target = Path(target)
     if not target.exists():
@@ -115,7 +115,7 @@ def evaluate_target(target: str | Path, gt: str, box: str | None = None) -> dict
     if target.is_dir():
         import trimesh
 
-        from ..export import read_point_cloud_ply
+        from shsas_core.outputs.export import read_point_cloud_ply
 
         methods = sorted({p.name.rsplit("_", 1)[0] for p in target.glob("*_pointcloud.ply")}
                          | {p.name.rsplit("_", 2)[0] for p in target.glob("*_mesh.ply")})
@@ -133,8 +133,8 @@ def evaluate_target(target: str | Path, gt: str, box: str | None = None) -> dict
             vol = target / f"{m}_volume.npy"
             fixed = None
             if vol.exists():  # the paper's fixed level needs the volume, not the thresholded cloud
-                from ..export import read_volume_npy
-                from ..extract import PAPER_TAU, point_cloud
+                from shsas_core.evaluation.extract import PAPER_TAU, point_cloud
+                from shsas_core.outputs.export import read_volume_npy
 
                 fixed = point_cloud(read_volume_npy(vol), PAPER_TAU).points
             out[m] = score_reconstruction(pts, msh, truth, fixed)
@@ -145,20 +145,20 @@ def evaluate_target(target: str | Path, gt: str, box: str | None = None) -> dict
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..metrics import finite_or_none
+    from shsas_core.evaluation.metrics import finite_or_none
 
     res = evaluate_target(args.target, args.gt, args.box)
     if args.write:
         if not Path(args.target).is_dir():
             raise ShsasError("--write: only for output folders")
-        from ..export import write_json
+        from shsas_core.outputs.export import write_json
 
         write_json({k: finite_or_none(v) for k, v in res.items()}, Path(args.target) / "evaluation.json")
     if args.json:
         print(json.dumps({k: finite_or_none(v) for k, v in res.items()}, indent=2))
         return 0
-    from ..diagnostics import mesh_warnings
-    from .reconstruct import console, metrics_table, print_warnings
+    from shsas_core.cli.reconstruct import console, metrics_table, print_warnings
+    from shsas_core.evaluation.diagnostics import mesh_warnings
 
     console().print(metrics_table(res, title=f"evaluation of {args.target} against {args.gt}"))
     print_warnings({name: mesh_warnings(m) for name, m in res.items()})

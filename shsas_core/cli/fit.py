@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_path
-from ..errors import ShsasError
-from ..options import (
+from shsas_core.common.atomic import atomic_path
+from shsas_core.common.errors import ShsasError
+from shsas_core.spec.options import (
     AVERAGE_LAST,
     AVERAGE_LAST_HELP,
     DEVICE,
@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("survey", help="survey file (canonical .h5 or any format `shsas convert` reads)")
     p.add_argument("--method", choices=["shsas", "reed"], default="shsas",
                    help="shsas: spherical-harmonic field of degree --sh-degree; reed: isotropic (L=0)")
-    # defaults are the job spec's (shsas_core.options); TrainConfig checks the bounds
+    # defaults are the job spec's (shsas_core.spec.options); TrainConfig checks the bounds
     p.add_argument("--sh-degree", type=int, default=SH_DEGREE, choices=[0, 1, 2, 3], help="SH degree L (shsas only)")
     p.add_argument("--iters", type=int, default=ITERS,
                    help=f"training iterations (default {ITERS}; paper: 26k-100k on GPU)")
@@ -87,16 +87,18 @@ def _signals(survey, kind: str, device: str) -> tuple[np.ndarray, str]:
                          "the deconvolution first)")
     if kind in ("auto", "wiener"):
         try:
-            from ..deconv import DeconvConfig, deconvolve
+            from shsas_core.signal.deconv import DeconvConfig, deconvolve
         except ImportError:
             if kind == "wiener":
                 raise ShsasError("fit: pulse deconvolution is not available in this build "
                                  "(fix: use --signals analytic)") from None
         else:
-            from ..device import resolve_device
+            from shsas_core.common.device import resolve_device
 
             return np.asarray(deconvolve(survey, DeconvConfig(), resolve_device(device))), "wiener"
-    from ..signal import analytic_samples  # the one definition of "the samples as complex"
+    from shsas_core.signal.chain import (
+        analytic_samples,  # the one definition of "the samples as complex"
+    )
 
     complex_ = survey.samples is not None and np.iscomplexobj(survey.samples)
     return analytic_samples(survey), "samples (complex)" if complex_ else "analytic"
@@ -105,12 +107,13 @@ def _signals(survey, kind: str, device: str) -> tuple[np.ndarray, str]:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from ..device import resolve_device
-    from ..fields import FieldConfig, SHField, encoding_preset
-    from ..importers import load_survey
-    from ..progress import TqdmProgress
-    from ..render import RenderConfig
-    from ..train import TrainConfig, fit
+    from shsas_core.common.device import resolve_device
+    from shsas_core.common.progress import TqdmProgress
+    from shsas_core.formats import load_survey
+    from shsas_core.neural.fields import SHField, encoding_preset
+    from shsas_core.neural.fields.config import FieldConfig
+    from shsas_core.neural.render import RenderConfig
+    from shsas_core.neural.train import TrainConfig, fit
 
     device = resolve_device(args.device)
     survey = load_survey(args.survey)

@@ -19,8 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..importers import load_survey
-    from ..io import summarize
+    from shsas_core.formats import load_survey
+    from shsas_core.formats.hdf5 import summarize
 
     survey = load_survey(args.file, load_samples=False)
     s = summarize(survey)

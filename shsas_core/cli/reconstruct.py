@@ -9,12 +9,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .spec_options import add_spec_options, spec_from_args
+from shsas_core.cli.spec_options import add_spec_options, spec_from_args
 
 __all__ = ["add_spec_options", "console", "print_result", "spec_from_args"]
 
 if TYPE_CHECKING:
-    from ..diagnostics import ResultWarning
+    from shsas_core.evaluation.diagnostics import ResultWarning
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,9 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..memory import memory_budget
-    from ..pipeline import run as run_pipeline
-    from ..progress import TqdmProgress
+    from shsas_core.common.progress import TqdmProgress
+    from shsas_core.pipeline.job import run as run_pipeline
+    from shsas_core.spec.memory import memory_budget
 
     spec = spec_from_args(args)
     budget = memory_budget()
@@ -90,7 +90,7 @@ def metrics_table(metrics: Mapping[str, Mapping[str, float]], title: str = "metr
     """A rich table: one row per method and output (point cloud, mesh)."""
     from rich.table import Table
 
-    from ..report import OUTPUT_ROWS, TABLE_COLUMNS
+    from shsas_core.outputs.report import OUTPUT_ROWS, TABLE_COLUMNS
 
     table = Table(title=title)
     table.add_column("method")

@@ -104,9 +104,9 @@ def build_config(args: argparse.Namespace):
     """SimulationConfig from the parsed options; invalid values raise ShsasError."""
     import pydantic
 
-    from ..errors import ShsasError
-    from ..simulate import ScatteringConfig, SimulationConfig, TrajectoryConfig
-    from ..survey import PulseParams, SceneBox
+    from shsas_core.common.errors import ShsasError
+    from shsas_core.data.survey import PulseParams, SceneBox
+    from shsas_core.simulation.simulate import ScatteringConfig, SimulationConfig, TrajectoryConfig
 
     try:
         traj = TrajectoryConfig(
@@ -149,8 +149,8 @@ def load_points(path: str):
     """Scatterers from a .npy file holding (M, 3) positions or (M, 6) positions + normals."""
     import numpy as np
 
-    from ..errors import ShsasError
-    from ..scatterers import Scatterers
+    from shsas_core.common.errors import ShsasError
+    from shsas_core.simulation.scatterers import Scatterers
 
     try:
         a = np.load(path, allow_pickle=False)
@@ -164,10 +164,10 @@ def load_points(path: str):
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io import write_survey
-    from ..progress import TqdmProgress
-    from ..shapes import load_mesh
-    from ..simulate import simulate
+    from shsas_core.common.progress import TqdmProgress
+    from shsas_core.formats.hdf5 import write_survey
+    from shsas_core.simulation.shapes import load_mesh
+    from shsas_core.simulation.simulate import simulate
 
     cfg = build_config(args)
     if args.points is not None:

@@ -12,7 +12,7 @@ import argparse
 from collections.abc import Callable
 from typing import Any
 
-from ..errors import ShsasError
+from shsas_core.common.errors import ShsasError
 
 #: Spec fields whose option is not ``--{field with - for _}`` (names the CLI has always used).
 OPTION_NAMES: dict[str, str] = {"deconvolution": "deconv", "num_bins": "bins", "num_rays": "rays",
@@ -33,7 +33,7 @@ def option_name(field: str) -> str:
 
 def spec_schema() -> dict[str, dict[str, Any]]:
     """Field name -> JSON schema of that field of :class:`ReconstructionSpec` (as the API shows it)."""
-    from ..spec import ReconstructionSpec
+    from shsas_core.spec.job import ReconstructionSpec
 
     return ReconstructionSpec.model_json_schema()["properties"]
 
@@ -75,10 +75,10 @@ _TYPES: dict[str, Callable[[str], Any]] = {"integer": int, "number": float, "str
 
 
 def add_spec_options(p: argparse.ArgumentParser) -> None:
-    """One option per :class:`~shsas_core.spec.ReconstructionSpec` field, plus ``--preset``."""
-    from ..spec import PRESETS
+    """One option per :class:`~shsas_core.spec.job.ReconstructionSpec` field, plus ``--preset``."""
+    from shsas_core.spec.job import PRESETS
 
-    g = p.add_argument_group("reconstruction spec (defaults: shsas_core.spec.ReconstructionSpec)")
+    g = p.add_argument_group("reconstruction spec (defaults: shsas_core.spec.job.ReconstructionSpec)")
     g.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="start from a named setting: default (the best measured on a CPU) or paper "
                    "(the paper's: empty start, 200 bins x 4,800 rays, paper_gpu encoding, 50k "
@@ -109,7 +109,7 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
     """Build and validate the spec; ``defaults`` apply where an option was not given."""
     import pydantic
 
-    from ..spec import PRESETS, ReconstructionSpec
+    from shsas_core.spec.job import PRESETS, ReconstructionSpec
 
     kw: dict[str, object] = dict(defaults)
     kw.update(PRESETS[getattr(args, "preset", None) or "default"])

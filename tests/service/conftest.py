@@ -23,7 +23,7 @@ import httpx
 import numpy as np
 import pytest
 
-from shsas_core.io import write_survey
+from shsas_core.formats.hdf5 import write_survey
 from tests.conftest import make_survey
 
 REPO = Path(__file__).resolve().parents[2]
@@ -199,7 +199,7 @@ def submit(client: httpx.Client, survey: Path, spec: dict | None, **headers) -> 
 def write_demo_survey(path: Path) -> Path:
     """A small simulated survey of a sphere (10 x 90 pings), with ground truth: a backprojection
     at grid 32 shows the shape in seconds (the console tests' demo survey)."""
-    from shsas_core.simulate import simulate_shape
+    from shsas_core.simulation.simulate import simulate_shape
 
     write_survey(simulate_shape("sphere", heights=10, angles=90, snr_db=20.0, seed=0), path)
     return path

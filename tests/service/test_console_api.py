@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from shsas_core.export import read_point_cloud_ply
-from shsas_core.spec import ReconstructionSpec
+from shsas_core.outputs.export import read_point_cloud_ply
+from shsas_core.spec.job import ReconstructionSpec
 
 from .conftest import SERVER_START_S, start_server, submit, wait_for, write_demo_survey
 
@@ -100,8 +100,8 @@ def test_reextract_refuses_what_it_cannot_do(client, done, survey_file) -> None:
 
 
 def test_survey_view_is_the_info_summary_plus_geometry(client, done, server) -> None:
-    from shsas_core.importers import load_survey
-    from shsas_core.io import summarize
+    from shsas_core.formats import load_survey
+    from shsas_core.formats.hdf5 import summarize
 
     r = client.get(f"/reconstructions/{done['id']}/survey")
     assert r.status_code == 200, r.text

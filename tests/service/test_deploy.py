@@ -158,7 +158,7 @@ def test_dockerfile_references() -> None:
     assert cmd is not None
     check_shsas_command(yaml.safe_load(cmd.group(1)))
     # service settings, or the variables the core library reads itself (kernel cache / switch)
-    core_env = set(re.findall(r'"(SHSAS_[A-Z_]+)"', (REPO / "shsas_core/fields/native.py").read_text()))
+    core_env = set(re.findall(r'"(SHSAS_[A-Z_]+)"', (REPO / "shsas_core/neural/fields/native.py").read_text()))
     assert core_env == {"SHSAS_CACHE_DIR", "SHSAS_NATIVE"}
     for name in re.findall(r"\bSHSAS_[A-Z_]+", text):
         assert name in SETTING_ENV | core_env, name

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from shsas_core.diagnostics import COLLAPSE_SPREAD_LIMIT
+from shsas_core.evaluation.diagnostics import COLLAPSE_SPREAD_LIMIT
 
 from .conftest import FAST_TIMINGS, db_env, start_server, submit, wait_for, write_tiny_survey
 

@@ -182,7 +182,7 @@ def test_range_numbers_of_any_length(client, artifact) -> None:
 def test_files_from_other_tools(client, tmp_path: Path) -> None:
     """A survey written from docs/formats.md with dotted meta keys is accepted; one whose two
     pulse descriptions disagree gets 422 naming the file, the problem and the fix (item 6)."""
-    from tests.core.test_formats_doc import _disagreeing, write_from_tables
+    from tests.core.formats.test_formats_doc import _disagreeing, write_from_tables
 
     good = tmp_path / "from another tool.h5"
     write_from_tables(good, style="dotted")

@@ -20,7 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.declared_size import unwritten_samples, zero_filled_samples
+from tests.helpers.declared_size import unwritten_samples, zero_filled_samples
 from worker.runner import execute_job, job_paths
 from worker.settings import Settings
 from worker.store import JobStore

@@ -19,7 +19,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from shsas_core.spec import ReconstructionSpec
+from shsas_core.spec.job import ReconstructionSpec
 
 from .conftest import FAST_TIMINGS, REPO, SHSAS, Proc, free_port, start_server, submit, wait_for
 

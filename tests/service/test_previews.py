@@ -8,13 +8,13 @@ import io
 import numpy as np
 import trimesh
 
-from shsas_core.export import (
+from shsas_core.evaluation.extract import PointCloud
+from shsas_core.outputs.export import (
     read_point_cloud_ply,
     write_mesh_glb,
     write_mesh_ply,
     write_point_cloud_ply,
 )
-from shsas_core.extract import PointCloud
 from worker.previews import PREVIEW_FACES, PREVIEW_POINTS, preview_name, subsample, write_previews
 
 #: A survey far from the origin (UTM-like), where the GLB is written with a whole-metre offset.

@@ -13,8 +13,8 @@ from service.quotas import (
     train_samples,
 )
 from service.uploads import UploadError
-from shsas_core.spec import PRESETS, ReconstructionSpec
-from shsas_core.survey import SceneBox
+from shsas_core.data.survey import SceneBox
+from shsas_core.spec.job import PRESETS, ReconstructionSpec
 from worker.settings import Settings
 
 from .test_celery import LONG_SPEC, RESUMABLE_SPEC

@@ -15,9 +15,9 @@ import httpx
 import numpy as np
 import pytest
 
-from shsas_core.importers import detect_format, load_survey
-from shsas_core.io import read_survey, summarize
-from tests.core.importer_data import AirSASScan, SVSSTrack, write_airsas_pickle
+from shsas_core.formats import detect_format, load_survey
+from shsas_core.formats.hdf5 import read_survey, summarize
+from tests.helpers.importer_data import AirSASScan, SVSSTrack, write_airsas_pickle
 
 from .airsas_zips import cutout_zip, deconvolved_zip
 from .conftest import start_server, submit, wait_for

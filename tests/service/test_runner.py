@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from shsas_core.report import load_report
+from shsas_core.outputs.report import load_report
 from worker.runner import execute_job, job_paths
 from worker.settings import Settings
 from worker.store import JobStore, jobs

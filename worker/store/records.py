@@ -83,7 +83,7 @@ LOCAL_OWNER = "local"
 #: names never start with "_"), so existing databases need no new column; :meth:`Job.from_row`
 #: takes it out again, and rows written before it existed read as "no warnings".
 WARNINGS_KEY = "_warnings"
-#: Likewise the device that ran a finished job (``shsas_core.device.describe_device``).
+#: Likewise the device that ran a finished job (``shsas_core.common.device.describe_device``).
 DEVICE_KEY = "_device"
 KEY_PREFIX = "shsas_"
 
@@ -117,7 +117,7 @@ class Job:
     idempotency_key: str | None
     request_digest: str | None
     #: signs that the result failed: ``{"method", "code", "message", "measure", "limit"}`` each
-    #: (``shsas_core.diagnostics.ResultWarning`` plus the method); stored inside ``metrics``
+    #: (``shsas_core.evaluation.diagnostics.ResultWarning`` plus the method); stored inside ``metrics``
     warnings: list[dict[str, Any]] = field(default_factory=list)
     #: the device that ran the job (``cpu``, ``cuda:0 (card)``); stored inside ``metrics``; None
     #: until the job succeeded, and for rows written before it was recorded

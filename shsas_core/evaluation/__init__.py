@@ -1,0 +1,1 @@
+"""From volume to geometry and scores: extraction (ridge + mesh), metrics, alignment, result diagnostics."""

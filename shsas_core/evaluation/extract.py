@@ -1,0 +1,306 @@
+"""Turn a reconstructed volume into geometry: a surface point cloud and one mesh per object.
+
+Both backprojection images (complex ``|I|``) and neural fields (``|σ_DC|`` sampled on a grid by
+:func:`~shsas_core.neural.fields.volume.field_volume`) arrive here as a :class:`~shsas_core.data.volume.Volume`. The magnitude is
+normalised to [0, 1] by its range (``(m - min) / (max - min)``, :func:`normalize`), so the iso
+level τ means the same for every method: a neural field's non-zero floor (fog) maps to 0 just
+like a backprojection image's near-zero background.
+
+Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
+
+1. **Candidates:** voxels at or above τ. τ is ``threshold`` when given, else Otsu's threshold of
+   the normalised magnitude over the whole grid, clipped to ``[tau_min, tau_max]`` (Otsu splits
+   empty space from scatterers without assuming how much of the box the object fills; the clip
+   keeps it off the floor of a nearly empty volume and off the single brightest voxel).
+2. **Contrast (a CFAR test):** a sonar image's background is not one level: sidelobes and clutter
+   are strong next to the object and fall off away from it, so any one level over the whole box
+   keeps too much near the object in a large box, or too little in a tight one. Each voxel is
+   compared with the mean magnitude in a cube of ``background_window`` metres around it (wider
+   than the point-spread function, so a surface is a small part of the cube; cell-averaging
+   CFAR). For a background of Rayleigh-distributed magnitudes (a sum of many random-phase echoes)
+   a voxel exceeds ``k`` times the local mean with probability ``exp(-π k² / 4)``:
+   ``contrast_strong = 3`` is a false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of
+   7.4e-3. Ridge voxels at ``contrast_weak`` are kept when their connected piece of ridge holds one
+   at ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
+   sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
+   object fills the window) keeps its whole ridge above τ.
+3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.evaluation.ridge`): one sheet of
+   sub-voxel points where the magnitude peaks, instead of the shell's full thickness.
+4. **Normals** across the sheet, each turned toward the sensors that lit its point (``sensors``,
+   the survey's transmitter positions).
+5. **Mesh:** screened Poisson through the oriented points, trimmed to the points, simplified
+   (:mod:`shsas_core.evaluation.meshing`).
+
+``surface = "threshold"`` keeps every voxel centre at or above τ (no ridge, no contrast test) and
+``mesher = "marching_cubes"`` meshes the normalised magnitude's iso-surface at τ: together they
+are the paper's extraction (``--preset paper``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from shsas_core.common.errors import ShsasError
+from shsas_core.data.volume import Volume
+from shsas_core.spec.options import MESHER, MESHER_HELP, SURFACE, SURFACE_HELP, Mesher, Surface
+
+#: The paper's fixed iso level on the normalised magnitude (reported beside the rule's τ).
+PAPER_TAU = 0.2
+
+
+class ExtractConfig(BaseModel):
+    """How to turn a volume into a point cloud and a mesh (module doc)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    surface: Surface = Field(SURFACE, description=SURFACE_HELP)
+    mesher: Mesher = Field(MESHER, description=MESHER_HELP)
+
+    threshold: float | None = Field(None, gt=0, lt=1, description="normalised iso level τ; None = rule")
+    rule: Literal["otsu", "percentile"] = Field("otsu", description="rule for τ when threshold is None")
+    percentile: float = Field(99.0, gt=0, lt=100, description="for rule='percentile': keep voxels above it")
+    tau_min: float = Field(0.05, gt=0, lt=1, description="lower clip of the rule's τ")
+    tau_max: float = Field(0.9, gt=0, lt=1, description="upper clip of the rule's τ")
+    close_boundary: bool = Field(True, description="pad with empty voxels so meshes close at the box faces")
+    chunk: int = Field(65536, ge=1, description="grid points per field evaluation (memory bound)")
+    smoothing: float = Field(1.5, ge=0, le=10, description="Gaussian smoothing before the ridge test, voxels")
+    background_window: float = Field(0.05, gt=0, description="edge of the cube the local background "
+                                     "mean is taken over, m")
+    contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
+                                 "background mean when connected to a strong one")
+    contrast_strong: float = Field(3.0, gt=0, description="a ridge piece needs one voxel at this multiple")
+    min_piece: float = Field(0.01, ge=0, lt=1, description="ridge pieces with fewer points than this share "
+                             "of the largest piece's are dropped as specks")
+    trim: float = Field(5.0, gt=0, description="Poisson faces farther than this many voxels from every "
+                        "surface point are cut")
+    faces_per_point: float = Field(2.0, gt=0, description="face budget of the simplified mesh per surface point")
+    max_faces: int = Field(200_000, ge=100, description="most faces of the simplified mesh")
+    mesh_min_piece: float = Field(0.05, ge=0, lt=1, description="mesh pieces with less area than this "
+                                  "share of the largest piece's are dropped")
+
+
+@dataclasses.dataclass
+class PointCloud:
+    """Points with one scalar each.
+
+    Attributes:
+        points: (P, 3) float64 positions, m, survey frame (voxel centres for a threshold cloud,
+            sub-voxel ridge points for a ridge cloud).
+        scalars: (P,) float32 normalised magnitude at the point's voxel, in [τ, 1].
+        normals: (P, 3) float64 unit normals facing the sensors (ridge clouds), or None.
+    """
+
+    points: np.ndarray
+    scalars: np.ndarray
+    normals: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+
+def normalize(volume: Volume) -> np.ndarray:
+    """``grid.shape`` float32 magnitude scaled to [0, 1] by its range (a constant volume gives 0)."""
+    m = volume.magnitude()
+    if m.size == 0:
+        return m
+    lo, hi = float(m.min()), float(m.max())
+    if not hi > lo:
+        return np.zeros_like(m)
+    return ((m - lo) / (hi - lo)).astype(np.float32)
+
+
+def otsu_threshold(values: np.ndarray, bins: int = 256) -> float:
+    """Otsu's threshold of ``values`` (any shape): the level maximising between-class variance."""
+    from skimage.filters import threshold_otsu
+
+    v = np.asarray(values, dtype=np.float64).ravel()
+    if v.size == 0 or float(v.max()) == float(v.min()):
+        return float(v.max()) if v.size else 0.0
+    return float(threshold_otsu(v, nbins=bins))
+
+
+def choose_threshold(volume: Volume, config: ExtractConfig | None = None) -> float:
+    """τ for ``volume``: ``config.threshold`` if given, else the documented rule (module doc)."""
+    cfg = config or ExtractConfig()
+    if cfg.threshold is not None:
+        return float(cfg.threshold)
+    norm = normalize(volume)
+    if cfg.rule == "otsu":
+        tau = otsu_threshold(norm)
+    else:
+        tau = float(np.percentile(norm, cfg.percentile))
+    return float(np.clip(tau, cfg.tau_min, cfg.tau_max))
+
+
+def point_cloud(volume: Volume, tau: float) -> PointCloud:
+    """Voxel centres whose normalised magnitude is >= ``tau``.
+
+    Returns:
+        PointCloud with (P, 3) survey-frame centres, m, and their normalised magnitudes.
+    """
+    _check_tau(tau)
+    norm = normalize(volume)
+    idx = np.argwhere(norm >= tau)
+    lo, d = np.asarray(volume.grid.box_min), volume.grid.spacing
+    pts = lo + (idx + 0.5) * d
+    return PointCloud(pts.astype(np.float64), norm[tuple(idx.T)].astype(np.float32))
+
+
+def mesh(volume: Volume, tau: float, close_boundary: bool = True):
+    """Marching-cubes iso-surface of the normalised magnitude at ``tau``.
+
+    Vertices are in survey-frame metres: skimage returns positions in units of ``spacing``
+    measured from the centre of voxel (0, 0, 0), which sits at ``box_min + spacing/2`` (one voxel
+    further out when the volume is padded to close the surface at the box faces).
+
+    Returns:
+        ``trimesh.Trimesh`` (empty when no voxel reaches ``tau``).
+    """
+    import trimesh
+    from skimage.measure import marching_cubes
+
+    _check_tau(tau)
+    norm = normalize(volume)
+    if norm.size == 0 or float(norm.max()) < tau or (min(norm.shape) < 2 and not close_boundary):
+        return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
+    pad = 1 if close_boundary else 0
+    if pad:
+        norm = np.pad(norm, 1, mode="constant", constant_values=0.0)
+    if float(norm.min()) > tau:  # whole box above τ and no padding: no crossing
+        return trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), process=False)
+    d = volume.grid.spacing
+    verts, faces, _normals, _ = marching_cubes(norm, level=tau, spacing=tuple(float(s) for s in d),
+                                              allow_degenerate=False)
+    origin = np.asarray(volume.grid.box_min) + (0.5 - pad) * d
+    verts = verts.astype(np.float64) + origin
+    # skimage's gradient direction makes faces wind inward for "bright inside" volumes; flip so
+    # normals point out of the object (away from high magnitude), as viewers expect.
+    faces = faces[:, ::-1].astype(np.int64)
+    return trimesh.Trimesh(verts, faces, process=False)
+
+
+def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float) -> np.ndarray:
+    """``norm`` over its mean in a cube of edge ``window`` m around each voxel (module doc, step 2).
+
+    Args:
+        norm: (X, Y, Z) normalised magnitude; spacing: (3,) voxel size, m.
+    Returns:
+        (X, Y, Z) float32 ratio (0 where the local mean is 0).
+    """
+    from scipy import ndimage
+
+    size = [max(3, round(window / float(h)) | 1) for h in spacing]  # odd, at least 3 voxels
+    mean = ndimage.uniform_filter(norm.astype(np.float64), size=size, mode="nearest")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(mean > 0, norm / mean, 0.0)
+    return ratio.astype(np.float32)
+
+
+def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
+                sensors: np.ndarray | None = None) -> PointCloud:
+    """The surface points of ``volume`` (module doc, steps 1-4), with oriented normals.
+
+    Args:
+        volume: the reconstruction.
+        tau: candidate level on the normalised magnitude.
+        sensors: (M, 3) positions of the sensors (transmitters) that lit the scene, m; None:
+            normals face away from the centre of the scene box.
+    Returns:
+        PointCloud of sub-voxel ridge points, their voxels' normalised magnitudes and normals.
+    """
+    from shsas_core.evaluation.ridge import (
+        connected_to_strong,
+        drop_small_pieces,
+        orient_toward_sensors,
+        ridge,
+    )
+
+    _check_tau(tau)
+    cfg = config or ExtractConfig()
+    norm = normalize(volume)
+    grid = volume.grid
+    contrast = local_contrast(norm, grid.spacing, cfg.background_window)
+    weak = min(cfg.contrast_weak, cfg.contrast_strong)
+    lo = np.asarray(grid.box_min)
+    r = ridge(norm, (norm >= tau) & (contrast >= weak), lo, grid.spacing, cfg.smoothing)
+    r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
+    r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
+    if len(r) < max(grid.shape):
+        # too coarse or too sparse an image for the contrast test (the object fills the window):
+        # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
+        r = ridge(norm, norm >= tau, lo, grid.spacing, cfg.smoothing)
+    r = drop_small_pieces(r, grid.shape, cfg.min_piece)
+    if sensors is None or len(np.atleast_2d(sensors)) == 0:
+        centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))
+        # a point "sensor" far out along each point's own direction from the centre
+        sensors = centre + 1e3 * (r.points - centre)
+    normals = orient_toward_sensors(r.points, r.normals, np.asarray(sensors, dtype=np.float64))
+    return PointCloud(r.points, norm[tuple(r.index.T)].astype(np.float32), normals)
+
+
+def surface_mesh(cloud: PointCloud, spacing: float, config: ExtractConfig | None = None):
+    """Screened Poisson mesh of a ridge cloud (module doc, step 5); ``spacing`` the voxel size, m."""
+    from shsas_core.evaluation.meshing import poisson_mesh
+
+    cfg = config or ExtractConfig()
+    if cloud.normals is None:
+        raise ShsasError("extract: a Poisson mesh needs oriented normals (a ridge cloud)")
+    return poisson_mesh(cloud.points, cloud.normals, spacing, trim=cfg.trim * spacing,
+                        faces_per_point=cfg.faces_per_point, max_faces=cfg.max_faces,
+                        min_piece=cfg.mesh_min_piece)
+
+
+def extract(volume: Volume, config: ExtractConfig | None = None,
+            sensors: np.ndarray | None = None) -> tuple[float, PointCloud, Any]:
+    """τ by the config, then the point cloud and the mesh: ``(tau, PointCloud, Trimesh)``.
+
+    Args:
+        volume: the reconstruction.
+        config: the extraction (module doc).
+        sensors: (M, 3) transmitter positions, m, that face the ridge cloud's normals (see
+            :func:`ridge_cloud`); unused by a threshold cloud.
+    """
+    cfg = config or ExtractConfig()
+    tau = choose_threshold(volume, cfg)
+    if cfg.surface == "ridge":
+        cloud = ridge_cloud(volume, tau, cfg, sensors)
+    else:
+        cloud = point_cloud(volume, tau)
+    if cfg.mesher == "marching_cubes":
+        return tau, cloud, mesh(volume, tau, cfg.close_boundary)
+    if cloud.normals is None:
+        # a threshold cloud has no sheet to orient: Poisson is fed the ridge of the same volume
+        ridge_pts = ridge_cloud(volume, tau, cfg, sensors)
+        spacing = float(np.min(volume.grid.spacing))
+        return tau, cloud, surface_mesh(ridge_pts, spacing, cfg)
+    return tau, cloud, surface_mesh(cloud, float(np.min(volume.grid.spacing)), cfg)
+
+
+def threshold_sweep(volume: Volume, taus: Sequence[float],
+                    score: Callable[[PointCloud, Any], dict[str, float]] | None = None,
+                    close_boundary: bool = True) -> list[dict[str, float]]:
+    """Extract at each τ and report sizes (and ``score(point_cloud, mesh)`` when given).
+
+    Returns:
+        One dict per τ: ``tau``, ``points``, ``faces`` plus the score's keys.
+    """
+    rows = []
+    for tau in taus:
+        pc = point_cloud(volume, float(tau))
+        m = mesh(volume, float(tau), close_boundary)
+        row = {"tau": float(tau), "points": float(len(pc)), "faces": float(len(m.faces))}
+        if score is not None:
+            row.update(score(pc, m))
+        rows.append(row)
+    return rows
+
+
+def _check_tau(tau: float) -> None:
+    if not (0.0 < float(tau) < 1.0) or not math.isfinite(float(tau)):
+        raise ShsasError(f"threshold: τ must lie in (0, 1) on the normalised magnitude, got {tau}")

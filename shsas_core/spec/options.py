@@ -1,0 +1,113 @@
+"""The tunable options a job shares between its components, each declared once (issue 14).
+
+``ReconstructionSpec`` (the job, read by the CLI, the API and the worker), ``TrainConfig``,
+``RenderConfig`` and the ``fit`` / ``backproject`` commands used to declare the same option with
+their own bounds (200k against 1M iterations, 65,536 against 1M rays, grid 8..512 against 2..1024).
+Each now takes its type (bounds and description) and its default from here, so they cannot
+disagree. This module imports nothing of the package: every component can use it.
+
+Pydantic forbids a default inside ``Annotated[..., Field(...)]``, so each default is a constant
+beside its type: ``iters: Iters = ITERS``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+#: SH degree L of the neural field (0: isotropic, Reed et al.).
+SHDegree = Annotated[int, Field(ge=0, le=3, description="SH degree L; 0 = isotropic (Reed et al.)")]
+SH_DEGREE = 3
+
+Iters = Annotated[int, Field(ge=1, le=200_000, description="training iterations per neural method")]
+ITERS = 2000
+
+LearningRate = Annotated[float, Field(gt=0, le=1.0, description="Adam learning rate")]
+LR = 1e-3
+FinalLearningRate = Annotated[float, Field(gt=0, le=1.0)]
+#: (an optional field's description must sit on the field itself to reach its JSON schema)
+LR_FINAL_HELP = ("learning rate at the last iteration, reached by exponential decay from lr "
+                 "(None: constant lr, the paper's setting)")
+
+NumBins = Annotated[int, Field(ge=1, le=4096, description="range bins rendered per ping per iteration")]
+NUM_BINS = 64
+NumRays = Annotated[int, Field(ge=1, le=65536, description="TX rays per ping per iteration")]
+NUM_RAYS = 1024
+PingsPerBatch = Annotated[int, Field(ge=1, le=64, description="pings rendered per training iteration")]
+PINGS_PER_BATCH = 1
+
+AverageLast = Annotated[float, Field(gt=0, le=1)]
+#: Tail averaging of the neural methods (docs/neural.md, "Averaged weights").
+AVERAGE_LAST = 0.5
+AVERAGE_LAST_HELP = ("the neural field returned is the uniform average of its weights over this last "
+                     "fraction of the training iterations (tail averaging), which removes the "
+                     "iterate-to-iterate jitter of one-ping batches; None: the last iterate (the paper)")
+
+#: Samples along each TX ray whose field gradients make the Lambertian term's normal (docs/neural.md,
+#: "The Lambertian normal on a thin shell").
+NormalWindow = Annotated[int, Field(ge=1, le=16)]
+NORMAL_WINDOW = 1
+NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "
+                      "samples along its TX ray, ending at the sample (bins of one range window, so meant for "
+                      "forward psf); 1: the sample's own gradient (the paper). A thin shell's own gradient "
+                      "vanishes at its ridge and points back at the sonar past it, so only the near flank "
+                      "is lit and the fit builds a double sheet; 3-5 give one sharper sheet but a lower "
+                      "point-cloud F1 on solid scenes (docs/neural.md)")
+
+CoarseToFine = Annotated[float, Field(gt=0, le=1)]
+#: Coarse-to-fine starts with the hash levels of resolution up to this on (8 of the ``cpu``
+#: preset's 12: 16 … 145 cells across the box).
+COARSE_TO_FINE_START_RESOLUTION = 150
+#: Coarse-to-fine hash levels (docs/neural.md, "Coarse-to-fine hash levels"): the fraction of the
+#: training iterations over which the fine levels come in; None: every level from the start.
+COARSE_TO_FINE: float | None = 0.25
+COARSE_TO_FINE_HELP = ("the neural field's hash levels finer than resolution "
+                       f"{COARSE_TO_FINE_START_RESOLUTION} start switched off (the start from "
+                       "backprojection is distilled without them) and come in one after the other, each "
+                       "through a cosine window, over this fraction of the training iterations; None: "
+                       "every level from the start (the paper)")
+
+Seed = Annotated[int, Field(ge=0, le=2**31 - 1, description="seed of every random draw")]
+SEED = 0
+
+DeviceName = Annotated[str, Field(pattern=r"^(auto|cpu|cuda(:\d+)?)$",
+                                  description="auto (CUDA when present), cpu, cuda or cuda:N")]
+DEVICE = "auto"
+
+Target = Literal["coherent", "envelope"]
+TARGET: Target = "coherent"
+TARGET_HELP = ("data term of the neural methods: coherent fits complex s_PD (the paper); envelope fits "
+               "|s_PD| (real, >= 0), which converges at CPU budgets (docs/neural.md)")
+
+#: The hash-encoding presets by name (shsas_core.neural.fields.encoding.PRESETS; a test checks they
+#: agree). Here, not read from there, so the CLI can list them without importing torch.
+EncodingName = Literal["cpu", "small", "paper_gpu"]
+
+#: Voxels along the longest scene-box axis of a reconstruction grid.
+GridCount = Annotated[int, Field(ge=8, le=512, description="voxels along the longest scene-box axis")]
+
+UniformFraction = Annotated[float, Field(ge=0, le=1, description="uniform share of the range-bin sampling pdf")]
+UNIFORM_FRACTION = 0.1
+
+#: Weight λ6 of the angular prior on SH-SAS's coefficients (shsas_core.neural.train.relative_angular_roughness).
+AngularPrior = Annotated[float, Field(ge=0, le=100.0, description="weight λ6 of the angular prior")]
+ANGULAR_PRIOR = 0.0
+ANGULAR_PRIOR_HELP = ("weight λ6 of the angular prior on SH-SAS's scattering lobes: their Dirichlet energy "
+                      "on the sphere, Σ l(l+1)|c_lm|², over their isotropic energy |c_00|², so a lobe "
+                      "turns directional only as far as the echoes demand (docs/neural.md); 0: off, as "
+                      "in the paper; no effect at L = 0 (Reed)")
+
+#: Weight λ2 of the L1 sparsity prior on the field's density.
+SparsityWeight = Annotated[float, Field(ge=0, le=100.0, description="weight λ2 of the L1 sparsity prior "
+                                        "on the neural field's density; 0: off")]
+
+Surface = Literal["ridge", "threshold"]
+Mesher = Literal["poisson", "marching_cubes"]
+#: The defaults of the two choices, declared once (the spec's and the extraction's fields take them from here).
+SURFACE: Surface = "ridge"
+MESHER: Mesher = "poisson"
+SURFACE_HELP = ("surface points: ridge (the sheet where the magnitude peaks, kept by a local-contrast "
+                "test; shsas_core.evaluation.extract) or threshold (every voxel at or above the level, as in the paper)")
+MESHER_HELP = ("mesh: poisson (screened Poisson through the oriented surface points, trimmed and "
+               "simplified) or marching_cubes (iso-surface of the volume at the level, as in the paper)")

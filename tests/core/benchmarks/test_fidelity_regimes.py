@@ -1,0 +1,111 @@
+"""The fidelity benchmark's survey regimes (benchmarks/bench_fidelity.py) and the azimuth-arc
+ping subset they use (shsas_core.simulation.trajectory.azimuth_arc_indices). No simulation of the dense
+surveys: the regimes are checked on their trajectories, the arc on a small simulated sphere."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shsas_core.simulation.simulate import simulate_shape
+from shsas_core.simulation.trajectory import (
+    TrajectoryConfig,
+    azimuth_arc_indices,
+    azimuth_deg,
+    full_trajectory,
+    make_trajectory,
+)
+
+BENCH = Path(__file__).resolve().parents[3] / "benchmarks" / "bench_fidelity.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_fidelity", BENCH)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["bench_fidelity"] = mod  # dataclasses look their module up by name
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_arc_keeps_exactly_the_half_turn_of_a_circular_trajectory() -> None:
+    cfg = TrajectoryConfig(heights=3, angles=120)
+    tx, _ = full_trajectory(cfg)
+    keep = azimuth_arc_indices(tx, 0.0, 180.0)
+    # ping k sits at azimuth 3°·(k mod 120): [0°, 180°) is angle index 0..59, 180° itself is out
+    expected = np.flatnonzero(np.arange(len(tx)) % 120 < 60)
+    np.testing.assert_array_equal(keep, expected)
+    assert keep.dtype == np.int64
+
+
+def test_arc_wraps_through_zero_and_a_full_circle_keeps_all() -> None:
+    tx, _ = full_trajectory(TrajectoryConfig(heights=1, angles=8))  # every 45°
+    np.testing.assert_array_equal(azimuth_arc_indices(tx, 270.0, 450.0), [0, 1, 6, 7])
+    np.testing.assert_array_equal(azimuth_arc_indices(tx, 90.0, 180.0), [2, 3])
+    np.testing.assert_array_equal(azimuth_arc_indices(tx, 10.0, 370.0), np.arange(8))
+    np.testing.assert_allclose(azimuth_deg(tx), np.arange(8) * 45.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("arc", [(0.0, 0.0), (90.0, 45.0), (0.0, 361.0)])
+def test_arc_rejects_empty_or_overfull_arcs(arc: tuple[float, float]) -> None:
+    with pytest.raises(ValueError, match="arc"):
+        azimuth_arc_indices(np.zeros((2, 3)), *arc)
+
+
+def test_sparse_regime_is_a_reproducible_tenth_of_dense(bench) -> None:
+    dense_tx, _, _ = make_trajectory(bench.REGIMES["dense"].simulation_config(0).trajectory)
+    _, _, idx0 = make_trajectory(bench.REGIMES["sparse"].simulation_config(0).trajectory)
+    _, _, again = make_trajectory(bench.REGIMES["sparse"].simulation_config(0).trajectory)
+    _, _, idx1 = make_trajectory(bench.REGIMES["sparse"].simulation_config(1).trajectory)
+    assert len(dense_tx) == 3600
+    assert abs(len(idx0) / len(dense_tx) - 0.10) <= 0.01
+    np.testing.assert_array_equal(idx0, again)
+    assert not np.array_equal(idx0, idx1)
+    assert np.all(np.diff(idx0) > 0) and idx0.max() < len(dense_tx)
+
+
+def test_regimes_simulate_what_they_say(bench) -> None:
+    cfg = {name: r.simulation_config(3) for name, r in bench.REGIMES.items()}
+    dense = cfg["dense"]
+    assert (dense.trajectory.heights, dense.trajectory.angles, dense.snr_db, dense.seed) == (30, 120, 20.0, 3)
+    assert dense.scattering.specular_weight == 0
+    assert cfg["noisy"].snr_db == 5.0
+    assert cfg["anisotropic"].scattering.specular_weight > 0
+    # the limited aperture selects from the dense survey, so it shares its simulation (and cache)
+    assert cfg["limited"] == dense
+
+
+def test_limited_regime_selects_the_arc_of_a_survey(bench) -> None:
+    survey = simulate_shape("sphere", heights=2, angles=8, snr_db=None, seed=0)
+    kept = bench.REGIMES["limited"].select(survey)
+    assert kept.num_pings == 8  # 4 of the 8 azimuths (0°, 45°, 90°, 135°) at both heights
+    np.testing.assert_array_equal(kept.extras["ping_index"], [0, 1, 2, 3, 8, 9, 10, 11])
+    assert np.all(azimuth_deg(kept.tx) < 180.0)
+    assert bench.REGIMES["dense"].select(survey) is survey
+
+
+def test_hard_scenes_are_built_in_shapes_and_the_specular_one_scatters_only_through_its_lobe(bench) -> None:
+    from shsas_core.simulation.shapes import SHAPES
+
+    for scene in bench.HARD_SCENES:
+        assert bench.scene_source(scene, Path("/nonexistent")) in SHAPES, scene
+    spec = bench.REGIMES["dense"].simulation_config(0, "specular").scattering
+    assert (spec.lambert, spec.specular_weight) == ("none", 1.0) and spec.specular_exponent > 20
+    # the regime's own settings hold for every other scene, and the regime's seed for all
+    assert bench.REGIMES["dense"].simulation_config(0, "bowl") == bench.REGIMES["dense"].simulation_config(0)
+    assert bench.REGIMES["noisy"].simulation_config(2, "specular").snr_db == 5.0
+
+
+def test_mesh_check_flags_a_foam_and_spares_multi_piece_scenes(bench) -> None:
+    def cell(scene: str, pieces: float, ratio: float) -> object:
+        return bench.Cell("dense", scene, 0, "backprojection", {"mesh_pieces": pieces, "mesh_area_ratio": ratio,
+                                                                "mesh_normal_consistency": 0.9, "seconds": 1.0}, "")
+
+    bad = bench.mesh_check("backprojection", [cell("bunny", 485.0, 2.2), cell("sphere", 1.0, 1.0)])
+    assert bad.status == "FAIL" and "bunny/seed0: pieces, area_ratio" in bad.detail and "sphere" not in bad.detail
+    ok = bench.mesh_check("backprojection", [cell("pipe", 2.0, 1.0), cell("sphere", 1.0, 1.1)])
+    assert ok.status == "PASS" and "1 run(s)" in ok.detail

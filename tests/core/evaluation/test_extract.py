@@ -1,0 +1,117 @@
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from shsas_core.common.errors import ShsasError
+from shsas_core.data.volume import Grid, Volume
+from shsas_core.evaluation.extract import (
+    ExtractConfig,
+    choose_threshold,
+    extract,
+    mesh,
+    normalize,
+    otsu_threshold,
+    point_cloud,
+    threshold_sweep,
+)
+from shsas_core.neural.fields.volume import field_volume
+
+
+def ramp_volume():
+    # values linear in x: 0 at the first voxel centre, 1 at the last -> iso-surface is a plane
+    g = Grid((0.0, -0.1, 0.0), (0.2, 0.1, 0.1), (20, 20, 10))
+    x = g.axes()[0]
+    v = (x - x[0]) / (x[-1] - x[0])
+    return g, Volume(g, np.broadcast_to(v[:, None, None], g.shape).astype(np.float32).copy())
+
+
+def test_mesh_vertices_in_survey_frame_exact():
+    g, vol = ramp_volume()
+    x = g.axes()[0]
+    m = mesh(vol, 0.3, close_boundary=False)
+    x_iso = x[0] + 0.3 * (x[-1] - x[0])
+    assert len(m.faces) > 0
+    np.testing.assert_allclose(m.vertices[:, 0], x_iso, atol=1e-6)
+    # the plane spans the voxel centres in y and z
+    np.testing.assert_allclose(m.vertices[:, 1].min(), g.axes()[1][0], atol=1e-9)
+    np.testing.assert_allclose(m.vertices[:, 2].max(), g.axes()[2][-1], atol=1e-9)
+
+
+def test_mesh_closed_sphere_is_watertight_outward_and_in_place():
+    g = Grid((-0.1, -0.1, 0.0), (0.1, 0.1, 0.2), (40, 40, 40))
+    c = np.array([0.01, -0.02, 0.1])
+    r = np.linalg.norm(g.points() - c, axis=1).reshape(g.shape)
+    vol = Volume(g, np.exp(-((r / 0.05) ** 2)).astype(np.float32))
+    m = mesh(vol, 0.5)
+    peak = float(np.exp(-((r.min() / 0.05) ** 2)))
+    r_iso = 0.05 * math.sqrt(-math.log(0.5 * peak))
+    d = np.linalg.norm(m.vertices - c, axis=1)
+    assert m.is_watertight
+    assert m.volume > 0  # outward normals
+    np.testing.assert_allclose(d, r_iso, atol=0.6e-3)  # linear interpolation error < h²/8·curvature
+
+
+def test_point_cloud_voxel_centres_and_scalars():
+    g, vol = ramp_volume()
+    pc = point_cloud(vol, 0.5)
+    x = g.axes()[0]
+    assert len(pc) == int(np.sum((x - x[0]) / (x[-1] - x[0]) >= 0.5)) * 20 * 10
+    assert pc.scalars.min() >= 0.5 and pc.scalars.max() == pytest.approx(1.0)
+    np.testing.assert_allclose(np.unique(pc.points[:, 0]), x[x >= x[0] + 0.5 * (x[-1] - x[0])])
+
+
+def test_threshold_rules():
+    rng = np.random.default_rng(0)
+    g = Grid((0, 0, 0), (1, 1, 1), (16, 16, 16))
+    bright = rng.random(g.shape) < 0.1
+    vals = np.where(bright, 0.8, 0.1) + 0.01 * rng.standard_normal(g.shape)
+    vol = Volume(g, np.abs(vals).astype(np.float32))
+    tau = choose_threshold(vol)
+    n = normalize(vol)
+    # Otsu splits the two classes (up to one of its 256 histogram bins)
+    assert n[bright].min() >= tau
+    assert n[~bright].max() < tau + (n.max() - n.min()) / 256
+    assert otsu_threshold(normalize(vol)) == pytest.approx(tau)
+    assert choose_threshold(vol, ExtractConfig(threshold=0.42)) == 0.42
+    t99 = choose_threshold(vol, ExtractConfig(rule="percentile", percentile=99, tau_max=0.999))
+    assert np.mean(normalize(vol) >= t99) == pytest.approx(0.01, abs=0.002)
+    # range normalisation: an offset (fog) does not change the rule's selection
+    fog = Volume(g, (vol.values + 5.0).astype(np.float32))
+    assert choose_threshold(fog) == pytest.approx(tau, abs=1e-6)
+    np.testing.assert_allclose(normalize(fog), normalize(vol), atol=1e-5)
+    flat = Volume(g, np.zeros(g.shape, np.float32))
+    assert choose_threshold(flat) == ExtractConfig().tau_min
+    with pytest.raises(ShsasError):
+        point_cloud(vol, 1.5)
+
+
+def test_empty_volume_gives_empty_outputs_and_sweep():
+    g, vol = ramp_volume()
+    empty = Volume(g, np.zeros(g.shape, np.float32))
+    _, pc, m = extract(empty)
+    assert len(pc) == 0 and len(m.faces) == 0
+    rows = threshold_sweep(vol, [0.2, 0.5, 0.8], score=lambda pc, m: {"n": float(len(pc))})
+    assert [r["tau"] for r in rows] == [0.2, 0.5, 0.8]
+    assert rows[0]["points"] > rows[1]["points"] > rows[2]["points"] == rows[2]["n"]
+
+
+class RadialField(torch.nn.Module):
+    """c_00 = 2 - |x| (complex), one more coefficient that extraction must ignore."""
+
+    def __init__(self):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.ones(()))
+
+    def coefficients(self, x):
+        c0 = (2 - x.norm(dim=1)) * self.w
+        return torch.stack([torch.complex(c0, -c0), torch.complex(5 * c0, c0)], 1)
+
+
+def test_field_volume_samples_dc_magnitude_in_chunks():
+    g = Grid((-1, -1, -1), (1, 1, 1), (6, 5, 4))
+    vol = field_volume(RadialField(), g, chunk=7)
+    exp = np.sqrt(2) * (2 - np.linalg.norm(g.points(), axis=1)) / math.sqrt(4 * math.pi)
+    np.testing.assert_allclose(vol.values.ravel(), exp, rtol=1e-5)
+    assert vol.values.dtype == np.float32

@@ -1,0 +1,139 @@
+"""Each option of a job is declared once (issue 14): the job spec (and so the HTTP API's schema),
+the CLI's help and the library configs report the same bounds and defaults."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import typing
+
+import pytest
+
+from shsas_core.cli.spec_options import bounds_text, option_name, spec_schema, value_schema
+from shsas_core.neural.render import RenderConfig
+from shsas_core.neural.train import TrainConfig
+from shsas_core.spec.job import ReconstructionSpec
+
+#: Spec field -> (config, its field) that the pipeline hands the value to.
+SHARED = {
+    "iters": (TrainConfig, "iters"), "lr": (TrainConfig, "lr"), "lr_final": (TrainConfig, "lr_final"),
+    "num_bins": (TrainConfig, "num_bins"), "num_rays": (TrainConfig, "num_rays"),
+    "pings_per_batch": (TrainConfig, "pings_per_batch"), "seed": (TrainConfig, "seed"),
+    "device": (TrainConfig, "device"), "target": (TrainConfig, "target"),
+    "normal_window": (RenderConfig, "normal_window"), "coarse_to_fine": (TrainConfig, "coarse_to_fine"),
+}
+#: LossWeights.sparsity is a plain weight (>= 0, tests use 1000); the spec caps it at 100 for users.
+_BOUND_KEYS = ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "pattern", "enum", "type")
+
+
+def _bounds(prop: dict) -> dict:
+    value, nullable = value_schema(prop)
+    return {"nullable": nullable, **{k: value[k] for k in _BOUND_KEYS if k in value}}
+
+
+@pytest.mark.parametrize("field", sorted(SHARED))
+def test_spec_and_library_configs_agree(field):
+    model, name = SHARED[field]
+    lib = model.model_json_schema()["properties"][name]
+    assert _bounds(spec_schema()[field]) == _bounds(lib)
+    assert ReconstructionSpec.model_fields[field].default == model.model_fields[name].default
+
+
+@pytest.mark.parametrize("field", ["num_bins", "num_rays", "uniform_fraction"])
+def test_render_and_train_configs_agree(field):
+    assert _bounds(RenderConfig.model_json_schema()["properties"][field]) == \
+        _bounds(TrainConfig.model_json_schema()["properties"][field])
+    assert RenderConfig.model_fields[field].default == TrainConfig.model_fields[field].default
+
+
+def test_a_render_setting_trainconfig_owns_is_an_error_not_dropped():
+    with pytest.raises(ValueError, match="render.num_rays"):
+        TrainConfig(render=RenderConfig(num_rays=8))
+    cfg = TrainConfig(num_rays=8, render=RenderConfig(lambertian=False))
+    assert cfg.render_config().num_rays == 8 and cfg.render_config().lambertian is False
+
+
+def test_train_config_passes_every_spec_option():
+    from shsas_core.pipeline.job import train_config
+
+    spec = ReconstructionSpec(iters=7, lr=0.5, lr_final=0.01, num_bins=5, num_rays=6, pings_per_batch=2,
+                              seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5,
+                              coarse_to_fine=0.25, angular_prior=0.7)
+    cfg = train_config(spec)
+    for field, (model, name) in SHARED.items():
+        owner = cfg.render_config() if model is RenderConfig else cfg
+        assert getattr(owner, name) == getattr(spec, field), field
+    assert cfg.weights.sparsity == spec.sparsity
+    assert cfg.weights.angular == spec.angular_prior
+
+
+def test_spec_encoding_names_the_encoding_presets():
+    from shsas_core.neural.fields.encoding import PRESETS
+
+    assert set(typing.get_args(ReconstructionSpec.model_fields["encoding"].annotation)) == set(PRESETS)
+
+
+def _help(*argv: str) -> str:
+    from shsas_core.cli import build_parser
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.suppress(SystemExit):
+        build_parser().parse_args([*argv, "--help"])
+    return " ".join(buf.getvalue().split())
+
+
+@pytest.mark.parametrize("command", [["reconstruct"], ["demo"]])
+def test_every_spec_field_is_an_option_with_the_spec_bounds_and_default(command):
+    """Adding a spec field adds the option; its help shows the schema's bounds and default."""
+    text = _help(*command).split("reconstruction spec (defaults", 1)[1]
+    for field, prop in spec_schema().items():
+        opt = option_name(field)
+        assert f" {opt} " in text, opt
+        entry = text.split(f" {opt} ", 1)[1].split(" --", 1)[0]
+        value = value_schema(prop)[0]
+        span = bounds_text(value)
+        if span:
+            assert f"in {span}" in entry, (opt, entry)
+        if field != "methods":
+            default = prop.get("default")
+            assert f"(default {'none' if default is None else default})" in entry, (opt, entry)
+
+
+def test_api_schema_is_the_spec_schema():
+    """The API serves the spec's own schema (with factory defaults filled in), the one the CLI reads."""
+    pytest.importorskip("fastapi")
+    from service.console import spec_schema as api_schema
+
+    api = api_schema()["properties"]
+    assert {k: _bounds(v) for k, v in api.items()} == {k: _bounds(v) for k, v in spec_schema().items()}
+
+
+def test_cli_grid_bounds_are_the_spec_bounds(tmp_path):
+    from shsas_core.cli import main
+
+    lo, hi = (spec_schema()["grid"]["anyOf"][0][k] for k in ("minimum", "maximum"))
+    for bad in (lo - 1, hi + 1):
+        assert main(["backproject", str(tmp_path / "x.h5"), "--grid", str(bad), "--out", str(tmp_path)]) == 2
+        assert main(["reconstruct", str(tmp_path / "x.h5"), "--grid", str(bad), "--out", str(tmp_path)]) == 2
+
+
+def test_the_spec_methods_are_the_registry():
+    from shsas_core.pipeline.job import sh_degree_of
+    from shsas_core.spec.catalogue import NEURAL, REGISTRY
+    from shsas_core.spec.job import METHODS, Method
+
+    assert typing.get_args(Method) == tuple(REGISTRY) == METHODS == tuple(ReconstructionSpec().methods)
+    spec = ReconstructionSpec(sh_degree=2)
+    assert [sh_degree_of(m, spec) for m in METHODS] == [None, 0, 2]
+    assert NEURAL == ("reed", "shsas")
+
+
+def test_building_the_cli_does_not_import_torch():
+    """`shsas worker` / `serve` parse their options in a process that must not load torch (the
+    Celery parent; tests/service/test_celery.py checks its memory maps)."""
+    import subprocess
+    import sys
+
+    code = "import sys; from shsas_core.cli import build_parser; build_parser(); print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"

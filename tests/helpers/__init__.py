@@ -1,0 +1,1 @@
+"""Data builders and small oracles shared by the test packages."""
