@@ -8,7 +8,7 @@ import { methodName } from "./stages.js";
 import { Viewer } from "./viewer.js";
 import { plotPings, plotSurvey } from "./survey.js";
 
-// the primary surface F1 first (shsas_core/metrics.py), then the mesh's quality
+// the primary surface F1 first (shsas_core/evaluation/metrics.py), then the mesh's quality
 const METRIC_COLUMNS = ["threshold", "points", "faces", "seconds", "pc_surface_f1", "pc_fscore", "pc_chamfer_l2",
   "mesh_surface_f1", "mesh_fscore", "mesh_chamfer_l2", "mesh_pieces", "mesh_area_ratio", "mesh_normal_consistency"];
 

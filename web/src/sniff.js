@@ -1,5 +1,5 @@
 // What kind of file a survey is, from its first bytes, as the server's format detection reads
-// them (shsas_core.importers.detect_format): HDF5 (canonical, SVSS), zip (AirSAS CSV), pickle
+// them (shsas_core.formats.detect_format): HDF5 (canonical, SVSS), zip (AirSAS CSV), pickle
 // (AirSAS processed). A file that is none of them is refused before its upload starts.
 
 const HDF5 = [0x89, 0x48, 0x44, 0x46, 0x0d, 0x0a, 0x1a, 0x0a];
