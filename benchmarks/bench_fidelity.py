@@ -1,4 +1,4 @@
-"""The fidelity scoreboard (issue 12): the product's reconstruction quality under its defaults.
+"""The fidelity scoreboard: the product's reconstruction quality under its defaults.
 
 A fixed suite of scenes x survey regimes x methods, each run through ``shsas_core.pipeline.run``
 with ``ReconstructionSpec()`` DEFAULTS (only ``methods``, ``seed`` and ``device`` are set here:
@@ -131,7 +131,7 @@ MULTI_PIECE_SCENES: tuple[str, ...] = ("pipe", "shadow")
 MESH_SCENES: tuple[str, ...] = ("bunny", "armadillo")
 #: What ``--quick`` runs: the dense regime on the bunny, every method. Two neural fits at the
 #: defaults of this writing take 2.8-4 min each on the idle 2-core machine (1,500 iterations at
-#: 100-150 ms, docs/results.md, plus ~15 s around them), so adding the sphere (4 fits, 12-18 min
+#: 100-150 ms, docs/notebook/2026-11-lab-notebook.md, plus ~15 s around them), so adding the sphere (4 fits, 12-18 min
 #: in all) would not reliably stay under the 15 minutes asked of --quick.
 QUICK_SCENES: tuple[str, ...] = ("bunny",)
 QUICK_REGIMES: tuple[str, ...] = ("dense",)
