@@ -109,8 +109,11 @@ def main() -> None:
                   f"{r['pieces']:6.0f} {r['area']:6.2f} {r['f5_cloud']:7.3f} {r['f5_mesh']:8.3f} "
                   f"{r['seconds']:6.1f}", flush=True)
         if args.record:
+            default = (args.heights, args.angles, args.grid, args.seed) == (10, 90, 128, 0)
+            name = f"extract-{scene}" if default else \
+                f"extract-{scene}-{args.heights}x{args.angles}-grid{args.grid}-seed{args.seed}"
             record = records.make_record(
-                "extract", f"extract-{scene}",
+                "extract", name,
                 f"Extraction of one backprojection image, paper vs default: {scene} ({args.heights} x "
                 f"{args.angles} pings, 20 dB, grid {args.grid}, seed {args.seed})",
                 "python " + " ".join(["benchmarks/bench_extract.py", *sys.argv[1:]]), COLUMNS,
