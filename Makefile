@@ -61,7 +61,7 @@ bench: $(STAMP)
 	@for f in benchmarks/bench_*.py; do case $$f in *bench_fidelity.py) continue;; esac; \
 		echo "== $$f"; $(BIN)/python $$f || exit 1; done
 
-# the scoreboard of issue 12 (scenes x survey regimes x methods at the spec defaults)
+# the fidelity scoreboard (scenes x survey regimes x methods at the spec defaults)
 bench-fidelity: $(STAMP)
 	$(BIN)/python benchmarks/bench_fidelity.py $(FIDELITY_ARGS)
 

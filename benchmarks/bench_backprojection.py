@@ -12,7 +12,10 @@ AirSAS-scale case (150 x 150 x 120 voxels x 43,200 pings) with peak memory; with
 is extrapolated from a measured subset of its pings and labelled as such.
 
     python benchmarks/bench_backprojection.py [--device cpu|cuda] [--grid 48] [--pings 256]
-        [--no-phase] [--full] [--repeats 3]
+        [--no-phase] [--full] [--repeats 3] [--record]
+
+``--record`` writes the figures as a result record, ``benchmarks/results/backprojection-<device>[-full].json``
+(the scoreboard's source).
 
 Never asserts: speed is reported, not tested.
 """
@@ -26,6 +29,7 @@ import platform
 import resource
 import sys
 import time
+import types
 
 import numpy as np
 import torch
@@ -36,6 +40,18 @@ from shsas_core.imaging._backprojection_reference import reference_backproject
 from shsas_core.imaging.backprojection import BackprojectionConfig, backproject
 
 FS, C, FC = 100e3, 343.0, 20e3
+RECORD_COLUMNS = (("case", "case", ""), ("method", "implementation", ""), ("seconds", "s", "{:.3f}"),
+                  ("rate", "M voxel-pings/s", "{:,.1f}"), ("speedup", "vs reference", "{:.1f}x"),
+                  ("max_rel_diff", "max rel. diff", "{:.1e}"), ("peak_rss_gb", "peak RSS GB", "{:.2f}"),
+                  ("peak_gpu_gb", "peak GPU GB", "{:.2f}"))
+
+
+def records_module() -> types.ModuleType:
+    """``benchmarks/records.py`` (imported on demand: the benchmarks folder is no package)."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import records
+
+    return records
 
 
 def case(n_pings: int, grid: tuple[int, int, int], samples: int, seed: int = 0):
@@ -86,7 +102,10 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="run the AirSAS-scale case for real")
     ap.add_argument("--subset-pings", type=int, default=512,
                     help="pings of the AirSAS-scale grid measured for the extrapolation")
+    ap.add_argument("--record", action="store_true", help="write a result record into benchmarks/results/")
     args = ap.parse_args()
+    records = records_module() if args.record else None
+    load = records.load() if records else None
 
     dev = torch.device(args.device)
     gpu = dev.type == "cuda"
@@ -140,10 +159,15 @@ def main() -> None:
         fastest = tri
     base = rows[0][1] if ref is not None else None
     print(f"{'method':28s} {'time s':>9s} {'M voxel-pings/s':>16s} {'speed-up':>9s} {'max rel diff':>13s}")
+    table: list[dict[str, object]] = []
     for name, dt, out in rows:
-        diff = "" if ref is None else f"{np.abs(out - ref).max() / np.abs(ref).max():.1e}"
+        rel = None if ref is None else float(np.abs(out - ref).max() / np.abs(ref).max())
+        diff = "" if rel is None else f"{rel:.1e}"
         sp = "" if base is None else f"{base / dt:.1f}x"
         print(f"{name:28s} {dt:9.3f} {work / dt / 1e6:16.1f} {sp:>9s} {diff:>13s}")
+        table.append({"case": f"{g}³ voxels x {args.pings} pings", "method": name, "seconds": dt,
+                      "rate": work / dt / 1e6, "speedup": None if base is None else base / dt,
+                      "max_rel_diff": rel})
     rate = work / rows[-1][1]
 
     # ---- AirSAS scale: 150 x 150 x 120 voxels x 43,200 pings
@@ -175,8 +199,25 @@ def main() -> None:
               f"blocks, plus {sig_gb:.2f} GB for holding all 43,200 complex64 pings "
               f"-> about {mem + sig_gb:.2f} GB peak")
     print(f"AirSAS-scale case ran the {fastest.backend} kernel")
+    table.append({"case": "AirSAS scale, 150 x 150 x 120 voxels x " + (
+                      "43,200 pings" if args.full else f"{n_sub} of the 43,200 pings (a subset)"),
+                  "method": f"shsas {fastest.backend}", "seconds": dt, "rate": sub_rate / 1e6,
+                  "peak_rss_gb": mem, "peak_gpu_gb": gpu_mem if gpu else None})
     print(f"\nsummary: {fastest.backend} {rate / 1e6:.1f} M voxel-pings/s on the side-by-side case"
           + (f", {rate * rows[0][1] / work:.1f}x the plain reference" if base else ""))
+    if records is not None and load is not None:
+        record = records.make_record(
+            "backprojection", f"backprojection-{dev.type}" + ("-full" if args.full else "") + (
+                "" if (g, args.pings, args.samples, carrier) == (48, 256, 1200, FC)
+                else f"-{g}x{args.pings}x{args.samples}" + ("-nophase" if carrier is None else "")),
+            f"Backprojection throughput on {dev.type.upper()}"
+            + (" (AirSAS scale measured in full)" if args.full else ""),
+            "python " + " ".join(["benchmarks/bench_backprojection.py", *sys.argv[1:]]), RECORD_COLUMNS, table,
+            machine_info=records.machine(torch.cuda.get_device_name(dev) if gpu else None), load_info=load,
+            notes=f"{args.samples} samples per ping, "
+                  + ("passband, no phase term" if carrier is None else "baseband with the carrier phase term")
+                  + ", linear interpolation, float32; speed-up and max rel. diff against the plain reference.")
+        print(f"record: {records.write_record(record)}")
 
 
 if __name__ == "__main__":

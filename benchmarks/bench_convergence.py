@@ -5,12 +5,12 @@ neural field, and print
 
 * the whole-ping data loss (``shsas_core.neural.train.evaluate_data_loss``: every 15th ping, 1024 rays,
   least-squares best scale, so an untrained field is not handicapped by its amplitude) before
-  and after training, and their ratio (issue 5 asks >= 10x);
+  and after training, and their ratio (the goal is >= 10x);
 * the surface concentration (``shsas_core.evaluation.metrics.surface_concentration``): mean |σ_DC| within
   1 cm of the true mesh over the mean outside it, on a 48³ grid (1 = flat);
 * the mean training data loss of the first 10 and last 100 iterations, and the wall time.
 
-Usage (the figures in docs/results.md):
+Usage (the figures in docs/notebook/2026-11-lab-notebook.md):
 
     python benchmarks/bench_convergence.py --scenes sphere --degree 0 --iters 6000 --lr-final 1e-4
     python benchmarks/bench_convergence.py --scenes bunny --degree 0 --iters 12000 --lr-final 1e-4 \\

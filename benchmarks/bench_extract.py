@@ -18,6 +18,7 @@ Usage::
 
     python benchmarks/bench_extract.py                      # bunny and sphere, 10 x 90 pings, 128³
     python benchmarks/bench_extract.py --scenes bunny --grid 96 --heights 6 --angles 60
+    python benchmarks/bench_extract.py --record             # also write benchmarks/results/extract-<scene>.json
 """
 
 from __future__ import annotations
@@ -32,6 +33,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_fidelity as fid
+import records
+
+#: The scoreboard's names of the two extractions.
+LABELS = {"old": "paper (Otsu + marching cubes)", "new": "default (ridge + Poisson)"}
+COLUMNS = (("extraction", "extraction", ""), ("tau", "τ (Otsu)", "{:.3f}"), ("points", "points", "{:,.0f}"),
+           ("faces", "faces", "{:,.0f}"), ("pieces", "pieces (95 % area)", "{:.0f}"),
+           ("area", "area / GT", "{:.2f}"), ("f5_cloud", "F@5mm cloud", "{:.3f}"),
+           ("f5_mesh", "F@5mm mesh", "{:.3f}"), ("seconds", "s", "{:.1f}"))
 
 
 def pieces95(mesh) -> int:
@@ -85,16 +94,32 @@ def main() -> None:
     ap.add_argument("--grid", type=int, default=128, help="voxels along the longest scene-box axis")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--meshes", default=None, help="folder of bunny.obj etc. (default ../shared/data/meshes)")
+    ap.add_argument("--record", action="store_true",
+                    help="write each scene's figures as a result record (benchmarks/results/extract-<scene>.json)")
     args = ap.parse_args()
+    machine, load = records.machine(), records.load()
     meshes = fid.mesh_dir(args.meshes)
     print(f"{args.heights} x {args.angles} pings, 20 dB, grid {args.grid} (longest axis), seed {args.seed}")
     print(f"{'scene':8s} {'extraction':10s} {'tau':>6s} {'points':>8s} {'faces':>8s} {'pieces':>6s} "
           f"{'area':>6s} {'F@5 pc':>7s} {'F@5 mesh':>8s} {'s':>6s}")
     for scene in args.scenes.split(","):
-        for r in run_scene(fid.scene_source(scene, meshes), args.heights, args.angles, args.grid, args.seed):
+        rows = run_scene(fid.scene_source(scene, meshes), args.heights, args.angles, args.grid, args.seed)
+        for r in rows:
             print(f"{scene:8s} {r['extraction']:10s} {r['tau']:6.3f} {r['points']:8.0f} {r['faces']:8.0f} "
                   f"{r['pieces']:6.0f} {r['area']:6.2f} {r['f5_cloud']:7.3f} {r['f5_mesh']:8.3f} "
                   f"{r['seconds']:6.1f}", flush=True)
+        if args.record:
+            default = (args.heights, args.angles, args.grid, args.seed) == (10, 90, 128, 0)
+            name = f"extract-{scene}" if default else \
+                f"extract-{scene}-{args.heights}x{args.angles}-grid{args.grid}-seed{args.seed}"
+            record = records.make_record(
+                "extract", name,
+                f"Extraction of one backprojection image, paper vs default: {scene} ({args.heights} x "
+                f"{args.angles} pings, 20 dB, grid {args.grid}, seed {args.seed})",
+                "python " + " ".join(["benchmarks/bench_extract.py", *sys.argv[1:]]), COLUMNS,
+                [{**r, "extraction": LABELS[str(r["extraction"])]} for r in rows],
+                machine_info=machine, load_info=load, scene=scene, protocol="surface")
+            print(f"record: {records.write_record(record)}", flush=True)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The fidelity scoreboard (issue 12): the product's reconstruction quality under its defaults.
+"""The fidelity scoreboard: the product's reconstruction quality under its defaults.
 
 A fixed suite of scenes x survey regimes x methods, each run through ``shsas_core.pipeline.job.run``
 with ``ReconstructionSpec()`` DEFAULTS (only ``methods``, ``seed`` and ``device`` are set here:
@@ -53,6 +53,7 @@ Usage::
     python benchmarks/bench_fidelity.py --seeds 0,1,2 --regimes dense
     python benchmarks/bench_fidelity.py --merge          # reprint everything in --out, run nothing
     python benchmarks/bench_fidelity.py --paper --device cuda   # the paper's settings row
+    python benchmarks/bench_fidelity.py --merge --record # write the result records, run nothing
 
 ``--quick`` runs the dense regime on the bunny with all three methods (1 simulation, 1
 backprojection, 2 neural fits: about 7-10 minutes on the idle 2-core CPU machine at the defaults
@@ -67,6 +68,10 @@ result files of the profile, so a suite run in pieces still yields the full tabl
 with another spec (older defaults) are left out of the tables, with a warning. A cell already
 measured with the same code version (git commit plus a digest of uncommitted changes under
 ``shsas_core/``), spec and survey is not run again (``--fresh`` re-measures it).
+
+``--record`` also writes one result record per (regime, scene, seed) of the profile's current
+spec into ``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
+``docs/results.md`` is generated from them by ``benchmarks/scoreboard.py``).
 
 Simulated surveys are cached under ``--cache-dir`` (default ``$SHSAS_CACHE_DIR/fidelity`` or
 ``~/.cache/shsas/fidelity``), keyed by the scene, every simulation parameter and a digest of the
@@ -126,7 +131,7 @@ MULTI_PIECE_SCENES: tuple[str, ...] = ("pipe", "shadow")
 MESH_SCENES: tuple[str, ...] = ("bunny", "armadillo")
 #: What ``--quick`` runs: the dense regime on the bunny, every method. Two neural fits at the
 #: defaults of this writing take 2.8-4 min each on the idle 2-core machine (1,500 iterations at
-#: 100-150 ms, docs/results.md, plus ~15 s around them), so adding the sphere (4 fits, 12-18 min
+#: 100-150 ms, docs/notebook/2026-11-lab-notebook.md, plus ~15 s around them), so adding the sphere (4 fits, 12-18 min
 #: in all) would not reliably stay under the 15 minutes asked of --quick.
 QUICK_SCENES: tuple[str, ...] = ("bunny",)
 QUICK_REGIMES: tuple[str, ...] = ("dense",)
@@ -718,6 +723,48 @@ def report(profile_dir: Path, spec: ReconstructionSpec, machine: dict[str, Any])
     return summary
 
 
+def write_result_records(profile_dir: Path, profile: str, spec: ReconstructionSpec) -> list[Path]:
+    """One result record per (regime, scene, seed) of the profile, its methods as rows; only the
+    entries measured with ``spec`` (the ones the tables use). Machine, load, date and commit are
+    the first method's; the notes name any method measured under others."""
+    import records
+
+    want = spec_key(spec)
+    columns = [("method", "method", ""), *((k, t, f) for k, t, f, _ in COLUMNS)]
+    written = []
+    for path in sorted(profile_dir.glob("*/*/seed*/result.json")):
+        cell = read_record(path)
+        entries = {m: e for m, e in cell.get("methods", {}).items()
+                   if "error" not in e and spec_key(e.get("spec", {})) == want}
+        if not entries:
+            continue
+        methods = [m for m in METHODS if m in entries]
+        first = entries[methods[0]]
+        m0 = first.get("machine", {})
+        rows = [{"method": LABEL.get(m, m), **{k: _finite(v) for k, v in entries[m]["metrics"].items()},
+                 "seconds": _finite(entries[m]["seconds"])} for m in methods]
+        differ = [f"{LABEL.get(m, m)}: {e.get('machine', {}).get('cpu')}, load "
+                  f"{e.get('machine', {}).get('load_avg_before')}, code {e.get('code')}, finished {e.get('finished')}"
+                  for m, e in ((m, entries[m]) for m in methods[1:])
+                  if (e.get("code"), e.get("machine", {}).get("cpu")) != (first.get("code"), m0.get("cpu"))]
+        regime, scene, seed = cell["regime"], cell["scene"], int(cell["seed"])
+        name = f"fidelity-{profile}-{regime}-{scene}-seed{seed}"
+        record = {
+            "schema": records.SCHEMA, "benchmark": "fidelity", "name": name,
+            "title": f"Fidelity ({profile}): {regime} regime, {scene}, seed {seed}",
+            "command": (f"python benchmarks/bench_fidelity.py{' --paper' if profile == 'paper' else ''} "
+                        f"--regimes {regime} --scenes {scene} --seeds {seed}"),
+            "machine": {"cpu": m0.get("cpu"), "cores": m0.get("nproc"), "gpu": m0.get("gpu"),
+                        "torch": m0.get("torch")},
+            "load": {"loadavg": m0.get("load_avg_before"), "note": ""},
+            "date": str(first.get("finished", ""))[:10] or records.today(), "commit": first.get("code") or None,
+            "transcribed": None, "columns": [list(c) for c in columns], "rows": rows,
+            "notes": ("Measured under other conditions: " + "; ".join(differ) + ".") if differ else "",
+            "scene": scene, "regime": regime, "seed": seed, "protocol": "surface"}
+        written.append(records.write_record(record))
+    return written
+
+
 def _json_safe(obj: Any) -> Any:
     """NaN -> None all the way down (write_json refuses NaN)."""
     if isinstance(obj, float):
@@ -781,6 +828,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--ceiling", action="store_true", help="run nothing: print the solid F1 of each scene's "
                     "ground-truth surface band (a perfect surface-only reconstruction) and exit")
     ap.add_argument("--fresh", action="store_true", help="re-measure cells already measured")
+    ap.add_argument("--record", action="store_true", help="write one result record per (regime, scene, "
+                    "seed) of the profile into benchmarks/results/ (the scoreboard's source)")
     ap.add_argument("--meshes", help="folder with bunny.obj and armadillo.obj "
                     "(default $SHSAS_MESH_DIR or ../shared/data/meshes)")
     ap.add_argument("--cache-dir", help="simulated-survey cache (default $SHSAS_CACHE_DIR/fidelity "
@@ -832,6 +881,9 @@ def main(argv: list[str] | None = None) -> int:
             ok &= run_job(job, methods, spec, args.device, args, profile_dir, machine, code)
         print(f"ran in {time.perf_counter() - t:.0f} s", flush=True)
     report(profile_dir, spec, machine)
+    if args.record and profile != "dev":
+        for path in write_result_records(profile_dir, profile, spec):
+            print(f"record: {path}")
     return 0 if ok else 1
 
 

@@ -28,9 +28,10 @@ a perfect ±5 mm shell (the points of a 64³ grid over the box within 5 mm of th
 thresholded volume that is right to 5 mm keeps); and a double sheet (the mesh plus a copy moved
 7.5 mm outward along the vertex normals).
 
-    PYTHONPATH=. python benchmarks/bench_metrics.py --protocol
+    PYTHONPATH=. python benchmarks/bench_metrics.py --protocol [--record]
 
-Prints figures only; never asserts.
+``--record`` writes the protocol table as a result record (``benchmarks/results/metrics-protocol.json``,
+the scoreboard's source). Prints figures only; never asserts.
 """
 
 from __future__ import annotations
@@ -44,13 +45,17 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import records  # noqa: E402
 
 CASES = ("bunny", "armadillo", "cone", "cone-large")
 CONES = {"cone": (0.05, 0.15), "cone-large": (0.08, 0.20)}  # radius, height, m
-CONE_SECTIONS = 3632  # 7,264 faces, the size in issue 12
+CONE_SECTIONS = 3632  # 7,264 faces, the cone that once took 44 s and 8.4 GB
 
 
 def find_meshes(arg: str | None) -> Path:
@@ -146,8 +151,15 @@ def machine() -> str:
 PROTOCOL_CASES = ("sphere", "cube", "bunny")
 
 
-def protocol(meshes: Path) -> None:
-    """Print the surface and solid scores of ideal predictions side by side (module doc)."""
+PROTOCOL_COLUMNS = (("scene", "scene", ""), ("prediction", "prediction", ""),
+                    ("surface_f1", "surface F1 (primary)", "{:.3f}"), ("solid_f1", "solid F1 (paper code)", "{:.3f}"),
+                    ("fscore", "F@5mm", "{:.3f}"), ("fscore_2_5mm", "F@2.5mm", "{:.3f}"), ("pieces", "pieces", "{:.0f}"),
+                    ("area_ratio", "area ratio", "{:.2f}"), ("normal_consistency", "normal cons.", "{:.3f}"))
+
+
+def protocol(meshes: Path) -> list[dict[str, Any]]:
+    """Print the surface and solid scores of ideal predictions side by side (module doc); return
+    them as rows keyed like ``PROTOCOL_COLUMNS``."""
     import numpy as np
     import trimesh
 
@@ -161,6 +173,7 @@ def protocol(meshes: Path) -> None:
     from shsas_core.simulation.shapes import load_mesh
     from shsas_core.simulation.simulate import default_scene_box
 
+    table: list[dict[str, Any]] = []
     print("| scene | prediction | surface F1 (primary) | solid F1 (paper code) | F@5mm | F@2.5mm | pieces | area ratio | normal cons. |")
     print("|---|---|---|---|---|---|---|---|---|")
     for case in PROTOCOL_CASES:
@@ -179,11 +192,14 @@ def protocol(meshes: Path) -> None:
                 "double sheet 7.5 mm apart (mesh)": score_mesh(double.vertices, double.faces, gt)}
         for name, s in rows.items():
             q = {k: s.get(k) for k in ("pieces", "area_ratio", "normal_consistency")}
+            table.append({"scene": case, "prediction": name, **q,
+                          **{k: float(s[k]) for k in ("surface_f1", "solid_f1", "fscore", "fscore_2_5mm")}})
             cells = [f"{s['surface_f1']:.3f}", f"{s['solid_f1']:.3f}", f"{s['fscore']:.3f}", f"{s['fscore_2_5mm']:.3f}",
                      "–" if q["pieces"] is None else f"{q['pieces']:.0f}",
                      "–" if q["area_ratio"] is None else f"{q['area_ratio']:.2f}",
                      "–" if q["normal_consistency"] is None else f"{q['normal_consistency']:.3f}"]
             print(f"| {case} | {name} | " + " | ".join(cells) + " |", flush=True)
+    return table
 
 
 def main() -> None:
@@ -193,11 +209,24 @@ def main() -> None:
     ap.add_argument("--algorithms", default="reference,shsas")
     ap.add_argument("--cap-gb", type=float, default=12.0, help="address-space cap per run, GB (0: none)")
     ap.add_argument("--meshes", default=None, help="folder with bunny.obj and armadillo.obj")
+    ap.add_argument("--record", action="store_true",
+                    help="with --protocol: write benchmarks/results/metrics-protocol.json")
     ap.add_argument("--child", nargs=2, metavar=("CASE", "ALGORITHM"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     meshes = find_meshes(args.meshes)
     if args.protocol:
-        protocol(meshes)
+        machine_info, load_info = records.machine(), records.load()
+        rows = protocol(meshes)
+        if args.record:
+            record = records.make_record(
+                "metrics", "metrics-protocol",
+                "The scores of ideal predictions under the surface and the solid protocol",
+                "PYTHONPATH=. python " + " ".join(["benchmarks/bench_metrics.py", *sys.argv[1:]]),
+                PROTOCOL_COLUMNS, rows, machine_info=machine_info, load_info=load_info, protocol="surface",
+                notes="Shell: the points of a 64³ grid over the scene box within 5 mm of the surface. Double "
+                      "sheet: the mesh plus a copy moved 7.5 mm outward along its vertex normals. The figures "
+                      "are deterministic.")
+            print(f"record: {records.write_record(record)}")
         return
     if args.child:
         child(args.child[0], args.child[1], args.cap_gb, meshes)

@@ -1,5 +1,5 @@
 """The real AirSAS bunny end to end: import, (optional) autofocus result, backprojection, rigid
-alignment to the reference mesh, aligned Chamfer-L2 (docs/results.md, "Real AirSAS bunny").
+alignment to the reference mesh, aligned Chamfer-L2 (docs/notebook/2026-11-lab-notebook.md, "Real AirSAS bunny").
 
     python benchmarks/bench_real_bunny.py [--survey FILE.h5] [--grid 64] [--angle-step 2]
         [--level-step 1] [--pictures docs/img] [--backend compiled]

@@ -12,7 +12,7 @@
    ``--interval`` (default 1 s), paced: each client one request per interval on a fixed
    schedule, sent with an ``httpx.AsyncClient``. Prints requests/s, p50, p99, max, the
    niceness and thread counts of the API and of the worker, and their CPU use.
-   Goal (issue 13): paced p99 < 50 ms for 100 pollers at 1 request/s with a job training,
+   Goal: paced p99 < 50 ms for 100 pollers at 1 request/s with a job training,
    on an idle 2-core machine. ``SHSAS_WORKER_NICE=0`` in the environment runs the worker at the
    API's priority, for comparison.
 
@@ -24,7 +24,7 @@
    HEAD/DELETE on them, and valid tiny submissions cancelled and deleted at once. Prints the 5xx
    count (pollers and hostile client), the temporary bytes left behind (the server's private
    TMPDIR plus ``uploads/``, after the traffic stops), the API's RSS at start and end (all API
-   processes) and the pollers' p50/p99. Goal (issue 38): no 5xx, no leaked bytes, RSS within
+   processes) and the pollers' p50/p99. Goal: no 5xx, no leaked bytes, RSS within
    300 MiB of its start, poll p99 < 100 ms on an otherwise idle 2-core machine.
 
     PYTHONPATH=$PWD python benchmarks/bench_service.py [--seconds 30] [--clients 100] [--upload-gb 1]

@@ -159,6 +159,8 @@ def main() -> None:
                     "reference for eager)")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--mode", help=argparse.SUPPRESS)
+    ap.add_argument("--record", action="store_true",
+                    help="write one result record per case into benchmarks/results/ (train-<device>-<case>)")
     args = ap.parse_args()
     args.encoding = args.encoding or ("paper_gpu" if args.device.startswith("cuda") else "cpu")
     if args.case:
@@ -166,6 +168,7 @@ def main() -> None:
         return
     import torch
 
+    load = os.getloadavg()
     if args.no_native:
         os.environ["SHSAS_NATIVE"] = "0"  # inherited by the per-case subprocesses
     sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
@@ -204,6 +207,40 @@ def main() -> None:
         print(f"{case:<7}{f'{b} x {r}':>14}{pts:>10}{col(f, 'ms_median', '.0f'):>10}"
               f"{col(e, 'ms_median', '.0f'):>10}{ratio:>10}{col(f, 'peak_mib', '.0f'):>10}"
               f"{col(e, 'peak_mib', '.0f'):>11}{col(f, 'ms_min', '.0f'):>10}{col(e, 'ms_min', '.0f'):>11}")
+        if args.record and (f or e):
+            write_record(args, case, f, e, load, kernel, torch)
+
+
+RECORD_COLUMNS = (("batch", "batch", ""), ("points", "points", "{:,.0f}"), ("fast_ms", "fast ms", "{:,.0f}"),
+                  ("eager_ms", "eager ms", "{:,.0f}"), ("speedup", "speed-up", "{:.2f}x"),
+                  ("fast_min_ms", "fast min ms", "{:,.0f}"), ("eager_min_ms", "eager min ms", "{:,.0f}"),
+                  ("fast_peak_mib", "fast peak MiB", "{:,.0f}"), ("eager_peak_mib", "eager peak MiB", "{:,.0f}"))
+
+
+def write_record(args: argparse.Namespace, case: str, f: dict | None, e: dict | None,
+                 load: tuple[float, float, float], kernel: str, torch: object) -> None:
+    """One case's figures as a result record (``benchmarks/records.py`` has the schema)."""
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import records
+
+    device = args.device.split(":")[0]
+    variant = "".join(s for s, on in (("-no-native", args.no_native), ("-renderer-only", args.renderer_only),
+                                      ("-no-heap-cache", args.no_heap_cache),
+                                      (f"-{args.field_backend}", bool(args.field_backend))) if on)
+    b, r = CASES[case]
+    row = {"batch": f"{b} bins x {r} rays", "points": (f or e or {})["points"],
+           "fast_ms": f and f["ms_median"], "eager_ms": e and e["ms_median"],
+           "speedup": e["ms_median"] / f["ms_median"] if f and e else None,
+           "fast_min_ms": f and f["ms_min"], "eager_min_ms": e and e["ms_min"],
+           "fast_peak_mib": f and f["peak_mib"], "eager_peak_mib": e and e["peak_mib"]}
+    gpu = torch.cuda.get_device_name(args.device) if device == "cuda" else None  # type: ignore[attr-defined]
+    record = records.make_record(
+        "train", f"train-{device}-{case}{variant}", f"Training iteration time, {b} bins x {r} rays, {device}",
+        "python " + " ".join(["benchmarks/bench_train.py", *sys.argv[1:]]), RECORD_COLUMNS, [row],
+        machine_info=records.machine(gpu), load_info={"loadavg": [round(x, 2) for x in load], "note": ""},
+        notes=f"L = 3 with normals, {args.encoding} hash preset, {args.threads} threads, median of {args.iters} "
+              f"timed iterations after {args.warmup} warm-up; fast path's CPU encoding: {kernel}.")
+    print(f"record: {records.write_record(record)}")
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Does a short neural fit end no worse than the backprojection image it starts from? (issue 12)
+"""Does a short neural fit end no worse than the backprojection image it starts from?
 
 The pipeline starts each neural method from the job's backprojection image (distilled into the
 field, ``shsas_core.neural.warmstart``) and then fits it to the time-of-flight data. This benchmark runs

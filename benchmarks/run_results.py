@@ -1,4 +1,4 @@
-"""Experiment runner for docs/results.md: the paper's Table 1 protocol at CPU budgets.
+"""Experiment runner: the paper's Table 1 protocol at CPU budgets (its figures: docs/notebook/).
 
 For each scene (the Stanford bunny from ../shared/data/meshes and the built-in shapes), simulate
 a circular AirSAS-like survey at 20 dB, reconstruct it with backprojection, Reed et al. (L = 0)

@@ -1,4 +1,4 @@
-"""The structured access log: one ``shsas.access`` line per request (issue 13, item 7).
+"""The structured access log: one ``shsas.access`` line per request.
 
 Fields: ``method``, ``path`` (without the query string), ``status``, ``duration_ms``,
 ``key_id`` (the API key's id, ``local`` for keyless loopback clients, null when the request

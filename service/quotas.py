@@ -1,4 +1,4 @@
-"""Per-key quotas and the cost cap of a spec (issue 13, item 11).
+"""Per-key quotas and the cost cap of a spec.
 
 The limits themselves are settings (``SHSAS_MAX_ACTIVE_JOBS_PER_KEY``, ``SHSAS_MAX_TRAIN_SAMPLES``,
 ``SHSAS_MAX_GRID_VOXELS`` in :class:`worker.settings.Settings`); this module only applies them

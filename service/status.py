@@ -1,5 +1,5 @@
 """What a job's status adds for its owner: queue position, ETA and the worker's heartbeat age
-(issue 13, item 8).
+(so an owner can tell a queued job from a stuck one).
 
 The ETA is a rough figure from what the job table measured: the mean run time of the last
 jobs that ran to an end in the same queue (so it is ``null`` until one has), and, for a running

@@ -1,4 +1,4 @@
-"""Removes what nobody will ask for again (issue 13, item 9): finished jobs past
+"""Removes what nobody will ask for again: finished jobs past
 ``SHSAS_RETENTION_DAYS``, and upload folders no live request owns.
 
 Each upload gets a folder ``uploads/<random>/`` holding a ``lock`` file that the request keeps

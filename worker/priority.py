@@ -1,4 +1,4 @@
-"""Workers run at a lower CPU priority than the API (issue 13, item 12).
+"""Workers run at a lower CPU priority than the API, so status polls stay fast.
 
 A training job keeps every core busy; at equal priority the API's event loop waits its turn
 behind the job's threads, and status polls took seconds. With the worker at niceness 10 the

@@ -1,4 +1,4 @@
-"""Atomic file writes: the one temporary-name scheme of the package (issue 14).
+"""Atomic file writes: the one temporary-name scheme of the package.
 
 Every file a job writes (artifacts, checkpoints, caches, surveys) is written to a temporary name
 beside its target and renamed onto it (``os.replace``, atomic on one file system), so a reader

@@ -8,7 +8,7 @@ development machine a third of the CPU time of the fast training path was system
 ``M_TRIM_THRESHOLD`` (freed heap memory is kept) for the duration of a ``with`` block, so after
 the first iteration the buffers are reused without page faults; on exit it restores glibc's
 defaults and calls ``malloc_trim(0)`` so the process gives the memory back. Measured with
-``benchmarks/bench_train.py`` (docs/results.md). This is what PyTorch's CUDA caching allocator
+``benchmarks/bench_train.py`` (docs/notebook/2026-11-lab-notebook.md). This is what PyTorch's CUDA caching allocator
 does for GPU memory; the CPU allocator has no cache of its own.
 
 After the block, free chunks that sit below live allocations stay inside the heap's address

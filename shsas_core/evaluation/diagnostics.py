@@ -1,4 +1,4 @@
-"""Results that say when they failed (issue 12 §3b): checks of a finished method's volume and fit.
+"""Results that say when they failed: checks of a finished method's volume and fit.
 
 A reconstruction can run to the end and still be useless. Three failures are common enough, and
 cheap enough to detect, that no result should leave the pipeline without being checked for them:

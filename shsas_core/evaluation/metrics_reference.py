@@ -1,7 +1,7 @@
 """The first ground-truth band test, kept as a test oracle and benchmark baseline only.
 
 :func:`reference_within_distance_of_mesh` is :func:`shsas_core.evaluation.metrics.within_distance_of_mesh`
-as it was before the per-triangle search (issue 12): candidate pairs are every (point, triangle)
+as it was before the per-triangle search, the reference: candidate pairs are every (point, triangle)
 whose centroids lie within ``radius`` plus the *largest* triangle's bounding radius. That is
 correct but, on a mesh with long thin triangles, pairs nearly every point with nearly every
 triangle (a 7,264-face cone: 44 s and an 8.4 GB peak for one ground truth). The tests compare

@@ -4,7 +4,7 @@ Same contract as :func:`shsas_core.imaging.backprojection._bp_block` (same argum
 one GPU program owns a block of voxels and loops over the chunk's pings with its running sums in
 registers: no (voxels x pings) tensor is ever formed, and each ping's signal samples are read
 through the cache by neighbouring voxels. ``torch.compile`` of the plain kernel reached 10-19 G
-voxel-pings/s on an H100 (docs/results.md); this loop is what it could not find.
+voxel-pings/s on an H100 (docs/notebook/2026-11-lab-notebook.md); this loop is what it could not find.
 
 Triton ships with CUDA builds of PyTorch, not with the CPU wheel the project pins, so this module
 is imported only for CUDA devices (:func:`available` tells whether it can be).

@@ -1,4 +1,4 @@
-"""The reconstruction methods a job can run, in one registry (issue 14).
+"""The reconstruction methods a job can run, in one registry.
 
 The spec's ``methods`` names, the share of the job's progress each takes, whether it is a neural
 field and its SH degree were kept in four string tables (spec, pipeline weights, the pipeline's

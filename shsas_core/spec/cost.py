@@ -2,7 +2,7 @@
 
 The service refuses a CPU-queue job whose estimate is over ``SHSAS_MAX_CPU_JOB_S`` at
 submission, so a spec that would train for days on a CPU is not accepted only to be stopped by
-the time limit hours later. The rates are what a 2-core Xeon measured (docs/results.md: the
+the time limit hours later. The rates are what a 2-core Xeon measured (docs/notebook/2026-11-lab-notebook.md: the
 training and backprojection tables), rounded in the job's favour; a faster CPU worker finishes
 sooner than the estimate, so the cap errs towards accepting.
 """

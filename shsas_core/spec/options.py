@@ -1,4 +1,4 @@
-"""The tunable options a job shares between its components, each declared once (issue 14).
+"""The tunable options a job shares between its components, each declared once.
 
 ``ReconstructionSpec`` (the job, read by the CLI, the API and the worker), ``TrainConfig``,
 ``RenderConfig`` and the ``fit`` / ``backproject`` commands used to declare the same option with
@@ -45,7 +45,7 @@ AVERAGE_LAST_HELP = ("the neural field returned is the uniform average of its we
                      "iterate-to-iterate jitter of one-ping batches; None: the last iterate (the paper)")
 
 #: Samples along each TX ray whose field gradients make the Lambertian term's normal (docs/neural.md,
-#: "The Lambertian normal on a thin shell").
+#: "The Lambertian term and its normal").
 NormalWindow = Annotated[int, Field(ge=1, le=16)]
 NORMAL_WINDOW = 1
 NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "

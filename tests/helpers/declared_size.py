@@ -1,4 +1,4 @@
-"""Survey files that declare far more samples than their size suggests (issue 13, item 1).
+"""Survey files that declare far more samples than their size suggests (memory bombs).
 
 Both start from a valid tiny survey and replace ``pings/samples`` with a float32 dataset of the
 declared shape, one chunk per ping:

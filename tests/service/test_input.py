@@ -1,4 +1,4 @@
-"""What the upload route makes of mistaken requests (issue 13, items 4 and 5).
+"""What the upload route makes of mistaken requests.
 
 A real `shsas serve` (embedded, SQLite) in a subprocess, driven over HTTP: misnamed form
 fields, query parameters, validation messages naming the user's file, header values that

@@ -1,4 +1,4 @@
-"""Declared-size memory bombs (issue 13, item 1), against real processes and real HDF5 files.
+"""Declared-size memory bombs, against real processes and real HDF5 files.
 
 A survey's declared sizes are checked against the worker memory budget
 (``SHSAS_WORKER_MEMORY_BYTES``) before anything is allocated: at upload (413), in the worker

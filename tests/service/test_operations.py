@@ -1,4 +1,4 @@
-"""What operators see and control (issue 13, items 7 to 12), through real `shsas serve` processes
+"""What operators see and control, through real `shsas serve` processes
 over HTTP: the structured logs, queue position / ETA / heartbeat age, HEAD, DELETE, retention
 and the upload sweeper, offline /docs and the spec's schema, quotas and the cost cap, and the
 workers' lower CPU priority.

@@ -1,4 +1,4 @@
-"""The cost cap and the per-key quota (issue 13, item 11): which specs pass the default limits,
+"""The cost cap and the per-key quota: which specs pass the default limits,
 and what a refusal says. The HTTP answers (422, 429) are in test_operations.py."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Queued jobs survive a broker that loses its messages (issue 13, item 2).
+"""Queued jobs survive a broker that loses its messages.
 
 A Redis of this test's own (no persistence, like the one that lost the jobs), a real
 `shsas serve` API with its reconciler, a real Celery worker (`shsas worker`) and the job store on

@@ -1,4 +1,4 @@
-"""`shsas serve` takes its embedded local worker down with it (issue 13, item 3).
+"""`shsas serve` takes its embedded local worker down with it.
 
 A real `shsas serve` subprocess: SIGTERM or SIGINT to the serve process alone (not its process
 group, as `kill PID` or a service manager that signals only the main pid would) must stop the

@@ -178,7 +178,7 @@ def test_api_keys_hashed_verify_revoke(store: JobStore) -> None:
     assert store.verify_key(token) is None and not store.has_active_keys()
 
 
-# ---- issue 13, items 8, 9, 11: quota count, queue position and rate, deletion, retention ----------
+# ---- quota count, queue position and rate, deletion, retention ----------
 
 def test_count_active_counts_queued_and_running_of_one_owner(store: JobStore) -> None:
     a1, _ = new_job(store, "alice")

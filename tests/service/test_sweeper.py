@@ -1,4 +1,4 @@
-"""The sweeper (issue 13, item 9): abandoned uploads go whatever their age, uploads a live
+"""The sweeper: abandoned uploads go whatever their age, uploads a live
 request holds stay, finished jobs past the retention go with their files. Real files, real
 locks held by real processes, a real job store; the HTTP side is in test_operations.py."""
 

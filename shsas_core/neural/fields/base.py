@@ -1,4 +1,4 @@
-"""What the renderer, the trainer and the extraction need of a neural scattering field (issue 14).
+"""What the renderer, the trainer and the extraction need of a neural scattering field.
 
 :class:`ScatteringField` is that interface: ``forward`` (density, scattering, normals and the
 gradient they come from), the field's ``config``, the ``device`` and ``dtype`` its parameters

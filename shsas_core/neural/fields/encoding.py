@@ -88,7 +88,7 @@ PAPER_GPU_ENCODING = HashEncodingConfig(
 )
 #: CPU default: 12 levels x 2 features, N_min 16, N_max 512, 2^17 rows per level (~2.3 M params).
 #: Not 2^15: its hashed levels held 6-4,100x more vertices than rows, and the collision speckle
-#: cost the neural methods fidelity; not 2^19: slower for no more (docs/neural.md, "Hash-table size").
+#: cost the neural methods fidelity; not 2^19: slower for no more (docs/decisions/hash-table-size.md).
 CPU_ENCODING = HashEncodingConfig()
 
 #: Small (CPU, short runs): 8 levels, N_min 8, N_max 128, 2^13 rows per level; the setting the

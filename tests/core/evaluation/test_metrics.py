@@ -267,7 +267,7 @@ def test_within_distance_equals_reference_on_a_sliver_cone_grid():
 
 
 def test_band_search_on_slivers_measures_only_nearby_triangles():
-    """Issue 12: on a cone of long thin triangles, the old rule (every lookup at the largest
+    """On a cone of long thin triangles, the old rule (every lookup at the largest
     triangle's radius) paired ~every voxel with ~every triangle. The per-triangle search only
     pairs a point with triangles within radius + 2 cells (3 radius) of it."""
     from shsas_core.evaluation.metrics import mesh_candidate_pairs

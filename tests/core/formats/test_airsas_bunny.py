@@ -1,7 +1,7 @@
 """The public AirSAS bunny's deconvolved pings (../shared/data/airsas/bunny_20k_deconvolved), read
 in place: the importer's geometry, time axis and provenance against the data README's formulas
 written out here, the pre-deconvolved flag, and a coarse backprojection that is a bunny after a
-rigid alignment (docs/results.md, "Real AirSAS bunny"; the full-size figures come from
+rigid alignment (docs/notebook/2026-11-lab-notebook.md, "Real AirSAS bunny"; the full-size figures come from
 benchmarks/bench_real_bunny.py)."""
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def _aligned_chamfer(survey, pings) -> float:
 def test_coarse_backprojection_is_the_bunny_and_scrambled_heights_are_not(bunny):
     """Every 2nd level, every 6th degree (4,500 pings), 32 voxels across the box, the project's
     Otsu extraction, rigid ICP (4 yaw starts) to bunny.obj: measured 8.05e-4 m² (the full-size
-    figure in docs/results.md is from benchmarks/bench_real_bunny.py). The same pings with their
+    figure in docs/notebook/2026-11-lab-notebook.md is from benchmarks/bench_real_bunny.py). The same pings with their
     levels' heights shuffled (the data no longer match the geometry) must score clearly worse:
     measured 2.02e-3 m², 2.5x. About 25 s on 2 cores."""
     pings = np.arange(54_000).reshape(150, 360)[::2, ::6].ravel()

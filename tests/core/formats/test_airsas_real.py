@@ -1,6 +1,6 @@
 """The public AirSAS cut-out scan (../shared/data/airsas), read in place: import with background
 subtraction, the single-height verdict, the cut-out's size in the focused plane, and autofocus
-recovering errors put into its sound speed and range offset (docs/results.md, "Real data")."""
+recovering errors put into its sound speed and range offset (docs/notebook/2026-11-lab-notebook.md, "Real data")."""
 
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def test_autofocus_recovers_perturbed_sound_speed_and_range_offset(scan, rel, dr
         assert res.correction.sound_speed / s.meta.sound_speed - 1 == pytest.approx(0.0, abs=0.002)
 
 
-#: The cut-out's plane of focus in the converted frame (docs/results.md, "Real data").
+#: The cut-out's plane of focus in the converted frame (docs/notebook/2026-11-lab-notebook.md, "Real data").
 CUTOUT_FOCUS_Z = -0.0115
 #: The report's plane must lie this close to it, or say there is none.
 FOCUS_TOLERANCE_M = 0.010

@@ -2,7 +2,7 @@
 shsas_core.formats.hdf5.write_survey) load, keep every value, and agree with the pulse the docs describe.
 
 Also: a file whose two pulse descriptions disagree gets a warning from `shsas info`, dotted
-meta keys work, and every validation error carries a fix (issue 13, item 6).
+meta keys work, and every validation error carries a fix.
 """
 
 from __future__ import annotations

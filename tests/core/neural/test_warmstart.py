@@ -85,7 +85,7 @@ def test_fit_from_backprojection_scores_no_worse_than_its_start(shared: Path) ->
     The scene is the Stanford bunny (6 x 90 pings, 48^3 grid): its mesh is open underneath, so its
     occupancy (design §5) is its surface band and F1 scores the surface the fit sharpens. The
     solid sphere this test used before counts its unobservable inside, so a sharper shell loses
-    recall there whatever the fit does (docs/neural.md, "Does the fit end above its start?")."""
+    recall there whatever the fit does (docs/notebook/2026-11-lab-notebook.md, "Does the fit end above its start?")."""
     bench = load_bench("bench_warmstart")
     case = bench.warm_start_case(str(shared / "data" / "meshes" / "bunny.obj"), seed=0)
     print(case)

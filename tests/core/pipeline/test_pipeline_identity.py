@@ -1,4 +1,4 @@
-"""Refactoring guard (issue 14): the same seed on the demo survey gives byte-identical volumes.
+"""Refactoring guard: the same seed on the demo survey gives byte-identical volumes.
 
 The demo (``shsas demo``) simulates the built-in sphere on a circular survey at 20 dB and runs the
 default spec (backprojection, reed, shsas, each with the product's defaults). This test runs that
@@ -10,7 +10,7 @@ digest. Three later, deliberate changes of the defaults are undone in the job, s
 digests still hold: the weight average of the neural methods (``average_last``, checked in
 test_train) is off, coarse-to-fine hash levels (``coarse_to_fine``, checked in test_train and
 test_fields) are off, and the ``cpu`` hash-encoding preset keeps its earlier 2^15 rows per level
-(today's 2^17 rows and the level ramp were chosen by the fidelity benchmark, docs/neural.md).
+(today's 2^17 rows and the level ramp were chosen by the fidelity benchmark, docs/decisions/).
 
 The job runs in a fresh interpreter with one torch thread and ``OMP_NUM_THREADS=1``: float sums
 then run in one fixed order, so the bytes do not depend on the number of cores or on the state an

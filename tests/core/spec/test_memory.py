@@ -1,5 +1,5 @@
 """Declared sizes are checked before any samples are read, and the reading of the samples
-honours cancel (issue 13, item 1). Real HDF5 files; see tests/declared_size.py."""
+honours cancel. Real HDF5 files; see tests/declared_size.py."""
 
 from __future__ import annotations
 

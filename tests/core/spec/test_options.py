@@ -1,4 +1,4 @@
-"""Each option of a job is declared once (issue 14): the job spec (and so the HTTP API's schema),
+"""Each option of a job is declared once: the job spec (and so the HTTP API's schema),
 the CLI's help and the library configs report the same bounds and defaults."""
 
 from __future__ import annotations
