@@ -20,10 +20,10 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from jobs.settings import Settings, get_settings
+from jobs.store import JobStore
 from shsas_core.spec import ReconstructionSpec
 from worker.reconciler import Reconciler
-from worker.settings import Settings, get_settings
-from worker.store import JobStore
 
 from . import iso, survey_routes
 from .console import add_console

@@ -12,8 +12,8 @@ import pydantic
 from fastapi import Depends, Request
 from fastapi.responses import JSONResponse, Response
 
-from worker.settings import Settings
-from worker.store import JobStore
+from jobs.settings import Settings
+from jobs.store import JobStore
 
 from .auth import owner_of
 from .models import ErrorOut

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi import HTTPException, Request
 
-from worker.store import Job, JobStore
+from jobs.store import Job, JobStore
 
 from .auth import owner_of
 

@@ -21,12 +21,12 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
-from worker.runner import job_paths
+from jobs.layout import job_paths, survey_view_dir, validation_slots_dir
 
 from .artifacts import file_response
 from .lookup import caller_job
 from .models import ErrorOut
-from .survey_view import FOLDER, GROUND_TRUTH_NAME, VIEW_NAME
+from .survey_view import GROUND_TRUTH_NAME, VIEW_NAME
 from .uploads import UploadError
 from .validation import ValidationsBusy, validation_slot, view_in_child
 
@@ -56,7 +56,7 @@ async def _view(request: Request, job_id: str) -> tuple[dict, Path]:
     job = await to_thread.run_sync(caller_job, request, job_id)
     settings = request.app.state.settings
     in_dir, _ = job_paths(settings, job.id)
-    folder = in_dir.parent / FOLDER
+    folder = survey_view_dir(settings, job.id)
     kept = folder / VIEW_NAME
     if not kept.is_file():
         in_path = in_dir / job.input_name
@@ -75,7 +75,7 @@ async def _make_view(settings, in_path: Path, folder: Path, job_id: str) -> None
     work = in_path.parent.parent / f"survey-work-{uuid.uuid4().hex[:8]}"
     work.mkdir()
     try:
-        async with validation_slot(settings.data_dir / "validation-slots", settings.max_concurrent_validations,
+        async with validation_slot(validation_slots_dir(settings), settings.max_concurrent_validations,
                                    settings.validate_wait_s):
             made = await to_thread.run_sync(lambda: view_in_child(
                 in_path, work, settings.validate_memory_bytes, settings.validate_timeout_s,

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException, Request
 from fastapi.responses import Response
 
-from worker.runner import job_paths
+from jobs.layout import job_paths
 
 from ..artifacts import etag_of, file_response, media_type, safe_artifact_path
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep

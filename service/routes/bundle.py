@@ -10,7 +10,7 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import StreamingResponse
 
-from worker.runner import job_paths
+from jobs.layout import job_paths
 
 from ..artifacts import safe_artifact_path
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep

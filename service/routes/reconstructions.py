@@ -5,7 +5,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import shutil
 import time
 import uuid
 from contextlib import AsyncExitStack
@@ -17,11 +16,17 @@ from anyio import to_thread
 from fastapi import APIRouter, Header, HTTPException, Query, Request
 from fastapi.responses import JSONResponse, Response
 
+from jobs.layout import (
+    job_paths,
+    remove_job_files,
+    survey_view_dir,
+    uploads_dir,
+    validation_slots_dir,
+)
+from jobs.store import ORDERS, STATUSES, IdempotencyConflict, Job
 from shsas_core.errors import pydantic_fix
 from shsas_core.spec import ReconstructionSpec
 from worker.dispatch import dispatch
-from worker.runner import job_paths, remove_job_files
-from worker.store import ORDERS, STATUSES, IdempotencyConflict, Job
 
 from ..deps import ERRORS, Owner, SettingsDep, StoreDep, json_response
 from ..job_names import job_label
@@ -29,7 +34,6 @@ from ..lookup import job_of
 from ..models import ErrorOut, JobOut, JobPage
 from ..quotas import box_of, check_cpu_time, check_spec_cost, hold_slot
 from ..status import live_status
-from ..survey_view import FOLDER as VIEW_FOLDER
 from ..sweeper import upload_dir
 from ..uploads import UploadError, receive_upload
 from ..validation import ValidationsBusy, validate_in_child, validation_slot
@@ -82,7 +86,7 @@ async def submit(request: Request, who: Owner, store: StoreDep, settings: Settin
 
 async def _submit(request: Request, who: str, store: StoreDep, settings: SettingsDep,
                   idempotency_key: str | None, held: AsyncExitStack) -> Response:
-    with upload_dir(settings.data_dir / "uploads") as tmp_dir:
+    with upload_dir(uploads_dir(settings)) as tmp_dir:
         # "label" (optional): the operator's name for the job, shown in lists and searched
         up = await receive_upload(request, tmp_dir / "upload.part", settings.max_upload_bytes,
                                   text_fields=("spec", "label"))
@@ -118,7 +122,7 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
         await hold_slot(held, store, who, settings)
         upload_path = up.path
         try:
-            async with validation_slot(settings.data_dir / "validation-slots", settings.max_concurrent_validations,
+            async with validation_slot(validation_slots_dir(settings), settings.max_concurrent_validations,
                                        settings.validate_wait_s):
                 checked = await to_thread.run_sync(lambda: validate_in_child(
                     upload_path, settings.validate_memory_bytes, settings.validate_timeout_s,
@@ -137,7 +141,7 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
         in_dir.mkdir(parents=True)
         input_name = INPUT_NAME
         checked.input_path.replace(in_dir / input_name)
-        checked.view_dir.replace(in_dir.parent / VIEW_FOLDER)
+        checked.view_dir.replace(survey_view_dir(settings, job_id))
         try:
             job, created = await to_thread.run_sync(lambda: store.create_job(
                 owner=who, spec=spec_json, input_digest=up.sha256, input_name=input_name,
@@ -145,10 +149,10 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
                 idempotency_key=idempotency_key, request_digest=request_digest,
                 client_name=up.filename, label=label))
         except IdempotencyConflict as exc:
-            shutil.rmtree(in_dir.parent, ignore_errors=True)
+            remove_job_files(settings, job_id)
             raise UploadError(409, str(exc)) from None
         if not created:  # a concurrent request with the same key won
-            shutil.rmtree(in_dir.parent, ignore_errors=True)
+            remove_job_files(settings, job_id)
             return _accepted(job, request)
         try:
             await to_thread.run_sync(dispatch, settings, job)
@@ -157,7 +161,7 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
                           extra={"job_id": job.id, "key_id": who, "reason": type(exc).__name__})
             msg = f"the broker is unreachable ({type(exc).__name__}); nothing was queued, resubmit later"
             await to_thread.run_sync(store.fail_queued, job.id, msg)
-            shutil.rmtree(in_dir.parent, ignore_errors=True)
+            remove_job_files(settings, job_id)
             raise UploadError(503, msg) from None
         log.info("job %s submitted", job.id, extra={
             "job_id": job.id, "key_id": who, "queue": job.queue, "methods": spec.methods,

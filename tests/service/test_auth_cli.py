@@ -62,8 +62,8 @@ def test_keys_own_jobs_and_revocation(tmp_path, survey_file) -> None:
 def test_keyless_default_refuses_non_loopback_clients(tmp_path) -> None:
     from starlette.testclient import TestClient
 
+    from jobs.settings import Settings
     from service.app import create_app
-    from worker.settings import Settings
 
     app = create_app(Settings(data_dir=tmp_path / "d"), reconcile=False)
     with TestClient(app, client=("192.0.2.7", 5555)) as remote, TestClient(app, client=("127.0.0.1", 5555)) as local:

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from jobs.settings import Settings
 from shsas_core.cli import COMMANDS, build_parser
-from worker.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 MANIFESTS = sorted((REPO / "deploy").rglob("*.yaml"))

@@ -8,7 +8,7 @@ import uuid
 import pytest
 import sqlalchemy as sa
 
-from worker.store import JobStore, jobs, make_engine
+from jobs.store import JobStore, jobs, make_engine
 
 from .test_store import new_job, store  # noqa: F401 (the store fixture: SQLite and PostgreSQL)
 
