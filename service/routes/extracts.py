@@ -27,10 +27,10 @@ from shsas_core.extract import ExtractConfig, extract
 from shsas_core.pipeline import artifact_names
 from shsas_core.spec import Method
 
-from .artifacts import file_response, safe_artifact_path
-from .lookup import succeeded_job
-from .models import ErrorOut
-from .survey_view import VIEW_NAME
+from ..deps import SucceededJobDep
+from ..file_responses import file_response, safe_artifact_path
+from ..models import ErrorOut
+from ..survey_view import VIEW_NAME
 
 #: Levels are rounded to this step: a slider cannot make unbounded distinct extractions.
 TAU_STEP = 0.001
@@ -108,8 +108,7 @@ def _extract(job: Job, settings: Settings, method: str, tau: float) -> tuple[dic
     return info, folder, True
 
 
-def _run(request: Request, job_id: str, method: str, threshold: float) -> tuple[dict, Path, str, bool]:
-    job = succeeded_job(request, job_id)
+def _run(request: Request, job: Job, method: str, threshold: float) -> tuple[dict, Path, str, bool]:
     if method not in job.spec.get("methods", []):
         raise HTTPException(404, f"method {method!r} was not run in reconstruction {job.id} "
                                  f"(its methods: {', '.join(job.spec.get('methods', []))})")
@@ -119,10 +118,10 @@ def _run(request: Request, job_id: str, method: str, threshold: float) -> tuple[
 
 
 @router.get("/reconstructions/{job_id}/extract", response_model=Extraction, responses=ERRORS)
-def extract_summary(job_id: str, request: Request, method: MethodQ, threshold: LevelQ) -> Extraction:
+def extract_summary(job: SucceededJobDep, request: Request, method: MethodQ, threshold: LevelQ) -> Extraction:
     """Re-extract one method's point cloud and mesh at another iso level from the job's saved
     volume (seconds; no retraining). 409 unless the job succeeded."""
-    info, _, url, made = _run(request, job_id, method, threshold)
+    info, _, url, made = _run(request, job, method, threshold)
     return Extraction(**{**info, "seconds": info["seconds"] if made else 0.0},
                       mesh_url=url.format("mesh.glb"), pointcloud_url=url.format("pointcloud.ply"))
 
@@ -133,9 +132,9 @@ FILE_RESPONSES = {**ERRORS, 200: {"content": {"model/gltf-binary": {}, "applicat
 
 
 @router.get("/reconstructions/{job_id}/extract/{name}", responses=FILE_RESPONSES)
-def extract_file(job_id: str, name: Literal["mesh.glb", "pointcloud.ply"], request: Request,
+def extract_file(job: SucceededJobDep, name: Literal["mesh.glb", "pointcloud.ply"], request: Request,
                  method: MethodQ, threshold: LevelQ) -> Response:
     """The re-extracted mesh (GLB) or point cloud (PLY, scalar ``scalar_magnitude``) at a level."""
-    info, folder, _, _ = _run(request, job_id, method, threshold)
+    info, folder, _, _ = _run(request, job, method, threshold)
     stem, ext = name.split(".")
     return file_response(folder / name, request.headers, f"{method}_{stem}_{info['threshold']:g}.{ext}")
