@@ -1,5 +1,5 @@
-"""Listing and searching an owner's jobs (worker/store/listing.py) and adding columns to a store
-made by an older release (worker/store/migrate.py), on real SQLite and PostgreSQL."""
+"""Listing and searching an owner's jobs (jobs/store/listing.py) and adding columns to a store
+made by an older release (jobs/store/migrate.py), on real SQLite and PostgreSQL."""
 
 from __future__ import annotations
 

@@ -14,9 +14,8 @@ from jobs.layout import job_paths
 from jobs.settings import Settings
 from jobs.store import JobStore, jobs
 from shsas_core.report import load_report
+from tests.service.conftest import write_tiny_survey
 from worker.runner import execute_job
-
-from .conftest import write_tiny_survey
 
 QUICK = {"methods": ["backprojection"], "grid": 16, "device": "cpu"}
 LONG = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
