@@ -39,6 +39,7 @@ RUN if [ "$VARIANT" = "cuda" ]; then idx="$CUDA_INDEX"; else idx="$CPU_INDEX"; f
 WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY shsas_core ./shsas_core
+COPY jobs ./jobs
 COPY service ./service
 COPY --from=console /src/service/console/static ./service/console/static
 COPY worker ./worker

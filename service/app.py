@@ -20,17 +20,15 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from jobs.settings import Settings, get_settings
+from jobs.store import JobStore
 from shsas_core.spec.job import ReconstructionSpec
 from worker.reconciler import Reconciler
-from worker.settings import Settings, get_settings
-from worker.store import JobStore
 
-from . import iso, survey_routes
-from .console import add_console
 from .deps import RETRY_AFTER_S, unavailable
 from .logs import AccessLogMiddleware
 from .redact import redact_paths
-from .routes import artifacts, bundle, health, reconstructions
+from .routes import artifacts, bundle, console, extracts, health, reconstructions, surveys
 from .sweeper import Sweeper
 from .uploads import UploadError
 
@@ -120,9 +118,9 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
     app.include_router(bundle.router)  # every artifact in one streamed zip
     app.include_router(health.router)
     # The console and the routes made for it (re-extraction, survey view), kept in their modules.
-    app.include_router(iso.router)
-    app.include_router(survey_routes.router)
-    add_console(app)
+    app.include_router(extracts.router)
+    app.include_router(surveys.router)
+    console.add_console(app)
     return app
 
 

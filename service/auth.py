@@ -12,7 +12,7 @@ import time
 
 from fastapi import HTTPException, Request
 
-from worker.store import KEY_PREFIX, LOCAL_OWNER, JobStore
+from jobs.store import KEY_PREFIX, LOCAL_OWNER, JobStore
 
 
 def _token(request: Request) -> str | None:

@@ -35,10 +35,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         import uvicorn
 
+        from jobs.settings import get_settings
         from service.app import SERVE_PID_ENV, create_app
         from service.http_guard import GuardedHttpToolsProtocol, raise_fd_limit
         from worker.local import LocalWorkerSupervisor
-        from worker.settings import get_settings
     except ImportError as exc:
         raise ShsasError(f"serve: the service extra is not installed ({exc.name}); "
                          "pip install 'shsas[service]'") from None

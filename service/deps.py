@@ -1,4 +1,5 @@
-"""FastAPI dependencies shared by the routers: the job store, the settings and the caller.
+"""FastAPI dependencies shared by the routers: the job store, the settings, the caller and the
+caller's job named by the route's ``{job_id}``.
 
 Each reads what ``create_app`` put on ``app.state``; they are ``async`` so they run on the event
 loop (a thread hop per request would cost more than these reads under 100 pollers).
@@ -9,11 +10,11 @@ from __future__ import annotations
 from typing import Annotated
 
 import pydantic
-from fastapi import Depends, Request
+from fastapi import Depends, HTTPException, Request
 from fastapi.responses import JSONResponse, Response
 
-from worker.settings import Settings
-from worker.store import JobStore
+from jobs.settings import Settings
+from jobs.store import Job, JobStore
 
 from .auth import owner_of
 from .models import ErrorOut
@@ -38,6 +39,33 @@ async def current_settings(request: Request) -> Settings:
 Owner = Annotated[str, Depends(current_owner)]
 StoreDep = Annotated[JobStore, Depends(current_store)]
 SettingsDep = Annotated[Settings, Depends(current_settings)]
+
+
+def job_of(store: JobStore, job_id: str, who: str) -> Job:
+    """The job ``job_id`` owned by ``who``, or HTTPException 404: also for a malformed id (ids
+    are server-made hex) and for another key's job (whose existence is not revealed)."""
+    job = store.get(job_id, who) if len(job_id) <= 32 and job_id.isalnum() else None
+    if job is None:
+        raise HTTPException(404, f"no reconstruction {job_id!r} for this API key")
+    return job
+
+
+async def current_job(job_id: str, who: Owner, store: StoreDep) -> Job:
+    """The route's ``{job_id}`` if the caller's key owns it: 401 without a valid key, else 404."""
+    return job_of(store, job_id, who)
+
+
+JobDep = Annotated[Job, Depends(current_job)]
+
+
+async def current_succeeded_job(job: JobDep) -> Job:
+    """As :data:`JobDep`, and 409 unless the job succeeded (its outputs exist only then)."""
+    if job.status != "succeeded":
+        raise HTTPException(409, f"reconstruction {job.id} is {job.status}; this needs a succeeded job")
+    return job
+
+
+SucceededJobDep = Annotated[Job, Depends(current_succeeded_job)]
 
 
 def json_response(model: pydantic.BaseModel, status: int = 200) -> Response:

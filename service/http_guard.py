@@ -4,7 +4,7 @@ uvicorn closes idle keep-alive connections (``timeout_keep_alive``) but has no d
 request's head and no cap on the head's size or on connections, so a client trickling header
 bytes (slowloris) or sending an endless header line holds a socket, a file descriptor and
 memory for as long as it likes. :class:`GuardedHttpToolsProtocol` is uvicorn's httptools
-protocol plus, per API process (``SHSAS_HTTP_*`` settings, :class:`worker.settings.Settings`):
+protocol plus, per API process (``SHSAS_HTTP_*`` settings, :class:`jobs.settings.Settings`):
 
 - a head deadline: a connection whose request line and headers are not complete within
   ``http_header_timeout_s`` of its first byte (or of its opening) is answered 408 and closed;
@@ -27,7 +27,7 @@ from functools import lru_cache
 
 from uvicorn.protocols.http.httptools_impl import STATUS_LINE, HttpToolsProtocol
 
-from worker.settings import Settings, get_settings
+from jobs.settings import Settings, get_settings
 
 from .deps import RETRY_AFTER_S
 

@@ -8,8 +8,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, Field
 
+from jobs.store import Job
 from shsas_core.evaluation.diagnostics import ResultWarning
-from worker.store import Job
 
 from .status import LiveStatus
 

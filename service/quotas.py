@@ -1,7 +1,7 @@
 """Per-key quotas and the cost cap of a spec.
 
 The limits themselves are settings (``SHSAS_MAX_ACTIVE_JOBS_PER_KEY``, ``SHSAS_MAX_TRAIN_SAMPLES``,
-``SHSAS_MAX_GRID_VOXELS`` in :class:`worker.settings.Settings`); this module only applies them
+``SHSAS_MAX_GRID_VOXELS`` in :class:`jobs.settings.Settings`); this module only applies them
 and words the refusal, naming the limit and the setting that raises it.
 """
 
@@ -11,13 +11,13 @@ from contextlib import AsyncExitStack
 
 from anyio import to_thread
 
+from jobs.settings import Settings
+from jobs.store import JobStore
 from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import auto_grid_count
 from shsas_core.spec.catalogue import NEURAL
 from shsas_core.spec.cost import cpu_job_seconds
 from shsas_core.spec.job import ReconstructionSpec
-from worker.settings import Settings
-from worker.store import JobStore
 
 from .uploads import UploadError
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
-from worker.settings import Settings
-from worker.store import Job, JobStore
+from jobs.settings import Settings
+from jobs.store import Job, JobStore
 
 #: A heartbeat older than this many intervals means the worker is not running the job's
 #: heartbeat thread: it died, hangs, or cannot reach the job store (the reconciler re-queues it

@@ -18,8 +18,7 @@ from typing import Any
 
 import numpy as np
 
-#: The view's folder beside a job's ``input/``, and its files.
-FOLDER = "survey"
+#: The view's files (in the job's view folder, :func:`jobs.layout.survey_view_dir`).
 VIEW_NAME = "survey.json"
 GROUND_TRUTH_NAME = "ground_truth.glb"
 #: At most this many sensor positions are kept (evenly spaced over the pings).

@@ -26,10 +26,10 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
-from worker.periodic import Periodic
-from worker.runner import remove_job_files
-from worker.settings import Settings
-from worker.store import JobStore
+from jobs.layout import remove_job_files, uploads_dir
+from jobs.periodic import Periodic
+from jobs.settings import Settings
+from jobs.store import JobStore
 
 log = logging.getLogger("shsas.sweeper")
 
@@ -132,7 +132,7 @@ class Sweeper(Periodic):
 
     def sweep_once(self) -> None:
         try:
-            sweep_uploads(self.settings.data_dir / "uploads")
+            sweep_uploads(uploads_dir(self.settings))
             sweep_expired(self.store, self.settings)
         except Exception:  # the database may be briefly away; try again next time
             log.exception("sweep failed")

@@ -94,11 +94,12 @@ def validate(path: str, cfg: dict) -> dict:
 
     import numpy as np
 
+    from jobs.layout import SURVEY_VIEW
     from shsas_core.common.errors import ShsasError, SurveyValidationError
     from shsas_core.formats import detect_format, load_survey
     from shsas_core.formats.hdf5 import read_survey, summarize, write_survey
 
-    from .survey_view import FOLDER, ping_indices, write_view
+    from .survey_view import ping_indices, write_view
 
     out = Path(cfg["out_dir"])
     fmt = detect_format(path)
@@ -122,14 +123,14 @@ def validate(path: str, cfg: dict) -> dict:
         summary = summarize(survey)
         rows = survey.samples[ping_indices(survey.num_pings)]
     if cfg.get("view_only"):  # the survey view of a job stored before views were made at upload
-        write_view(survey, summary, rows, out / FOLDER)
+        write_view(survey, summary, rows, out / SURVEY_VIEW)
         return {"format": fmt, "summary": summary, "converted": False}
     if summary["warnings"]:
         # A job on such a file would run for hours and make noise: refuse it now (docs/service.md).
         raise ShsasError(summary["warnings"][0])
     if fmt != "shsas":
         write_survey(survey, out / CONVERTED_NAME)
-    write_view(survey, summary, rows, out / FOLDER)
+    write_view(survey, summary, rows, out / SURVEY_VIEW)
     return {"format": fmt, "summary": summary, "converted": fmt != "shsas"}
 
 

@@ -88,12 +88,13 @@ def _validate_in_child(path: Path, memory_bytes: int, timeout_s: float, spec: di
            "budget": worker_memory_bytes if spec is not None else None,
            "spec": json.dumps(spec) if spec is not None and worker_memory_bytes is not None else None}
     out = _run_child(cfg, path.parent, timeout_s)
-    from .survey_view import FOLDER
+    from jobs.layout import SURVEY_VIEW
+
     from .validate_child import CONVERTED_NAME
 
     return Checked(format=out["format"], summary=out["summary"],
                    input_path=out_dir / CONVERTED_NAME if out.get("converted") else path,
-                   view_dir=out_dir / FOLDER)
+                   view_dir=out_dir / SURVEY_VIEW)
 
 
 def view_in_child(path: Path, work: Path, memory_bytes: int, timeout_s: float, *,
@@ -104,14 +105,15 @@ def view_in_child(path: Path, work: Path, memory_bytes: int, timeout_s: float, *
     Raises:
         UploadError: the child's refusal, or the time limit.
     """
-    from .survey_view import FOLDER
+    from jobs.layout import SURVEY_VIEW
+
 
     out_dir = work / "checked"
     cfg = {"path": str(path), "memory_bytes": memory_bytes, "cpu_s": int(timeout_s) + 1, "out_dir": str(out_dir),
            "max_ground_truth_elements": max_ground_truth_elements, "max_extras_bytes": 1 << 62,
            "view_only": True}
     _run_child(cfg, work, timeout_s)
-    return out_dir / FOLDER
+    return out_dir / SURVEY_VIEW
 
 
 def _run_child(cfg: dict, work: Path, timeout_s: float) -> dict:

@@ -1,2 +1,2 @@
-"""Job execution for the shsas service: the job store, the runner, the Celery app and tasks,
-and the embedded local worker. Imports only ``shsas_core`` (never ``service``)."""
+"""Job execution for the shsas service: the runner, the Celery app and tasks, the reconciler and
+the embedded local worker. Imports ``jobs`` and ``shsas_core`` (never ``service``)."""

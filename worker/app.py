@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from jobs.settings import get_settings
+
 from .celery_app import make_celery
-from .settings import get_settings
 
 app = make_celery(get_settings())
 celery = app  # the name `celery -A worker.app` also looks for

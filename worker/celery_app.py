@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from celery import Celery
 
-from .settings import Settings
+from jobs.settings import Settings
 
 TASK_NAME = "shsas.run_job"
 

@@ -31,7 +31,7 @@ def run(args: argparse.Namespace) -> int:
             raise ShsasError(f"--gpu: expected a GPU index like 0, got {args.gpu!r}")
         os.environ["CUDA_VISIBLE_DEVICES"] = args.gpu
     try:
-        from worker.settings import get_settings
+        from jobs.settings import get_settings
     except ImportError as exc:
         raise ShsasError(f"worker: the service extra is not installed ({exc.name}); "
                          "pip install 'shsas[service]'") from None
@@ -39,10 +39,10 @@ def run(args: argparse.Namespace) -> int:
     if not settings.broker_url:
         raise ShsasError("worker: SHSAS_BROKER_URL is not set; `shsas serve` runs its own local worker in "
                          "that case (set SHSAS_BROKER_URL=redis://host:6379/0 for separate workers)")
+    from jobs.store import JobStore
     from worker.app import app
     from worker.logs import configure_logging
     from worker.reconciler import Reconciler
-    from worker.store import JobStore
 
     configure_logging(settings.log_format, args.log_level)  # pool children inherit it (fork)
 

@@ -28,8 +28,8 @@ def _store():
     from shsas_core.common.errors import ShsasError
 
     try:
-        from worker.settings import get_settings
-        from worker.store import JobStore
+        from jobs.settings import get_settings
+        from jobs.store import JobStore
     except ImportError as exc:
         raise ShsasError(f"keys: the service extra is not installed ({exc.name}); "
                          "pip install 'shsas[service]'") from None

@@ -6,14 +6,15 @@ from __future__ import annotations
 import time
 from functools import lru_cache
 
-from .settings import Settings
-from .store import Job
+from jobs.settings import Settings
+from jobs.store import Job
 
 
 @lru_cache(maxsize=4)
 def _celery(settings_json: str):
+    from jobs.settings import Settings
+
     from .celery_app import make_celery
-    from .settings import Settings
 
     return make_celery(Settings.model_validate_json(settings_json))
 

@@ -59,13 +59,13 @@ def _watch_parent(parent_pid: int) -> None:
 
 def run_local_worker(parent_pid: int | None = None) -> None:
     """Child-process entry point: poll, claim, run until SIGTERM or until ``parent_pid`` dies."""
+    from jobs.settings import get_settings
+    from jobs.store import JobStore
     from shsas_core.common.threads import size_thread_pools
 
     from .logs import configure_logging
     from .priority import lower_priority
     from .runner import execute_job, request_shutdown, worker_id
-    from .settings import get_settings
-    from .store import JobStore
 
     settings = get_settings()
     configure_logging(settings.log_format, "info")

@@ -17,10 +17,12 @@ from __future__ import annotations
 import logging
 import shutil
 
+from jobs.layout import job_paths
+from jobs.periodic import Periodic
+from jobs.settings import Settings
+from jobs.store import JobStore
+
 from .dispatch import broker_was_emptied, dispatch
-from .periodic import Periodic
-from .settings import Settings
-from .store import JobStore
 
 log = logging.getLogger("shsas.reconciler")
 
@@ -58,7 +60,7 @@ def reconcile_once(store: JobStore, settings: Settings) -> tuple[int, int]:
     for job in failed:
         if job.cancel_requested:
             # Cancelled while its worker was gone: drop what that worker left half-done.
-            shutil.rmtree(settings.jobs_dir() / job.id / "out", ignore_errors=True)
+            shutil.rmtree(job_paths(settings, job.id)[1], ignore_errors=True)
             log.warning("job %s cancelled after its worker was lost", job.id)
         else:
             log.error("job %s failed: its worker died %d times without a word (most often killed for "

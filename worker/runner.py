@@ -21,12 +21,13 @@ import uuid
 from collections.abc import Mapping
 from pathlib import Path
 
+from jobs.layout import job_paths, remove_job_files
+from jobs.periodic import Periodic
+from jobs.settings import Settings
+from jobs.store import Job, JobStore
 from shsas_core.common.atomic import is_partial, remove_partials
 
-from .periodic import Periodic
 from .previews import write_previews
-from .settings import Settings
-from .store import Job, JobStore
 
 log = logging.getLogger("shsas.worker")
 
@@ -52,17 +53,6 @@ def request_shutdown() -> None:
 def worker_id() -> str:
     """A unique lease-owner name for this process: host, pid and a random suffix."""
     return f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:6]}"
-
-
-def job_paths(settings: Settings, job_id: str) -> tuple[Path, Path]:
-    """(input dir, output dir) of a job; both server-made from the job id."""
-    base = settings.jobs_dir() / job_id
-    return base / "input", base / "out"
-
-
-def remove_job_files(settings: Settings, job_id: str) -> None:
-    """Delete everything a job has on disk (its input and outputs)."""
-    shutil.rmtree(settings.jobs_dir() / job_id, ignore_errors=True)
 
 
 class JobControl:

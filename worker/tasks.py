@@ -6,11 +6,12 @@ import logging
 
 from celery.signals import worker_process_init
 
+from jobs.settings import get_settings
+from jobs.store import JobStore
+
 from .app import app
 from .celery_app import TASK_NAME
 from .runner import execute_job
-from .settings import get_settings
-from .store import JobStore
 
 log = logging.getLogger("shsas.worker")
 

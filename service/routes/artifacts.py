@@ -7,21 +7,19 @@ from typing import Annotated
 from fastapi import APIRouter, Header, HTTPException, Request
 from fastapi.responses import Response
 
-from worker.runner import job_paths
+from jobs.layout import job_paths
 
-from ..artifacts import etag_of, file_response, media_type, safe_artifact_path
-from ..deps import ERRORS, Owner, SettingsDep, StoreDep
+from ..deps import ERRORS, JobDep, SettingsDep
+from ..file_responses import etag_of, file_response, media_type, safe_artifact_path
 from ..job_names import content_disposition, download_name
-from ..lookup import job_of
 from ..models import Artifact, ArtifactList
 
 router = APIRouter()
 
 
 @router.get("/reconstructions/{job_id}/artifacts", response_model=ArtifactList, responses=ERRORS)
-def list_artifacts(job_id: str, who: Owner, store: StoreDep, settings: SettingsDep) -> ArtifactList:
+def list_artifacts(job: JobDep, settings: SettingsDep) -> ArtifactList:
     """The job's output files (empty until it succeeds)."""
-    job = job_of(store, job_id, who)
     _, out_dir = job_paths(settings, job.id)
     items = []
     for name in job.artifacts:
@@ -38,7 +36,7 @@ def list_artifacts(job_id: str, who: Owner, store: StoreDep, settings: SettingsD
     200: {"content": {"application/octet-stream": {}, "model/gltf-binary": {}, "application/json": {},
                       "text/html": {}}}})
 def get_artifact(
-    job_id: str, name: str, who: Owner, store: StoreDep, settings: SettingsDep, request: Request,
+    job: JobDep, name: str, settings: SettingsDep, request: Request,
     # Declared so that the OpenAPI schema documents them (and fuzzers send them); the
     # values are read from request.headers by file_response.
     range_: Annotated[str | None, Header(alias="Range", description="one byte range: bytes=a-b, bytes=a- or "
@@ -47,7 +45,6 @@ def get_artifact(
     if_none_match: Annotated[str | None, Header(description="ETags: 304 if one matches")] = None,
 ) -> Response:
     """Download one artifact; supports Range and ETag/If-None-Match."""
-    job = job_of(store, job_id, who)
     _, out_dir = job_paths(settings, job.id)
     p = safe_artifact_path(out_dir, name, job.artifacts)
     if p is None:
@@ -62,9 +59,9 @@ def get_artifact(
 @router.head("/reconstructions/{job_id}/artifacts/{name}", responses={
     **ERRORS, 304: {"description": "not modified"}, 416: {"description": "range not satisfiable"},
     200: {"description": "the headers of the download (Content-Length, ETag, ...), no body"}})
-def head_artifact(job_id: str, name: str, who: Owner, store: StoreDep, settings: SettingsDep, request: Request,
+def head_artifact(job: JobDep, name: str, settings: SettingsDep, request: Request,
                   range_: Annotated[str | None, Header(alias="Range")] = None,
                   if_range: Annotated[str | None, Header()] = None,
                   if_none_match: Annotated[str | None, Header()] = None) -> Response:
     """The headers GET would send (size, type, ETag, Content-Range), without the body."""
-    return get_artifact(job_id, name, who, store, settings, request)
+    return get_artifact(job, name, settings, request)

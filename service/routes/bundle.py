@@ -10,12 +10,11 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import StreamingResponse
 
-from worker.runner import job_paths
+from jobs.layout import job_paths
 
-from ..artifacts import safe_artifact_path
-from ..deps import ERRORS, Owner, SettingsDep, StoreDep
+from ..deps import ERRORS, JobDep, SettingsDep
+from ..file_responses import safe_artifact_path
 from ..job_names import content_disposition, download_name
-from ..lookup import job_of
 
 router = APIRouter()
 
@@ -60,9 +59,8 @@ def zip_stream(files: list[tuple[str, Path]]) -> Iterator[bytes]:
 @router.get("/reconstructions/{job_id}/artifacts.zip", responses={
     **ERRORS, 409: {"description": "the job has no files yet"},
     200: {"content": {"application/zip": {}}, "description": "every artifact, streamed"}})
-def download_all(job_id: str, who: Owner, store: StoreDep, settings: SettingsDep) -> StreamingResponse:
+def download_all(job: JobDep, settings: SettingsDep) -> StreamingResponse:
     """Every artifact of the job in one zip (named after the uploaded survey), streamed."""
-    job = job_of(store, job_id, who)
     if not job.artifacts:
         raise HTTPException(409, f"reconstruction {job.id} has no files to download (status {job.status})")
     _, out_dir = job_paths(settings, job.id)

@@ -134,7 +134,7 @@ def test_page_is_served_with_a_strict_policy(client) -> None:
 
 
 def test_levels_are_rounded_inside_the_open_interval() -> None:
-    from service.iso import _level
+    from service.routes.extracts import _level
 
     assert [_level(t) for t in (0.0001, 0.0004, 0.1004, 0.1006, 0.9996, 0.99999)] == \
         [0.001, 0.001, 0.1, 0.101, 0.999, 0.999]

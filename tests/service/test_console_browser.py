@@ -496,7 +496,7 @@ def insert_jobs(server, n: int) -> list[str]:
     import time
     import uuid
 
-    from worker.store import LOCAL_OWNER, JobStore, jobs
+    from jobs.store import LOCAL_OWNER, JobStore, jobs
 
     store = JobStore(f"sqlite:///{Path(server['env']['SHSAS_DATA_DIR']) / 'shsas.db'}")
     now = time.time()
@@ -522,7 +522,7 @@ def insert_jobs(server, n: int) -> list[str]:
 
 
 def remove_jobs(server, ids: list[str]) -> None:
-    from worker.store import JobStore
+    from jobs.store import JobStore
 
     store = JobStore(f"sqlite:///{Path(server['env']['SHSAS_DATA_DIR']) / 'shsas.db'}")
     for jid in ids:

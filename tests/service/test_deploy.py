@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from jobs.settings import Settings
 from shsas_core.cli import COMMANDS, build_parser
-from worker.settings import Settings
 
 REPO = Path(__file__).resolve().parents[2]
 MANIFESTS = sorted((REPO / "deploy").rglob("*.yaml"))
@@ -164,6 +164,11 @@ def test_dockerfile_references() -> None:
         assert name in SETTING_ENV | core_env, name
     for src in re.findall(r"^COPY (?!--from=)(\S+) ", text, re.M):
         assert (REPO / src).exists(), src
+    # every package the wheel ships is in the image's build context, else `pip install .` fails
+    packages = re.search(r'^packages = (\[.*\])$', (REPO / "pyproject.toml").read_text(), re.M)
+    assert packages is not None
+    copied = set(re.findall(r"^COPY (\S+) \./\1$", text, re.M))
+    assert set(yaml.safe_load(packages.group(1))) <= copied, copied
     # the console is built in its own stage and only its bundle is copied into the image
     assert re.search(r"^COPY --from=console \S+ \./service/console/static$", text, re.M)
     assert 'ARG VARIANT=cpu' in text and '"$VARIANT" = "cuda"' in text

@@ -20,10 +20,11 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.helpers.declared_size import unwritten_samples, zero_filled_samples
-from worker.runner import execute_job, job_paths
-from worker.settings import Settings
-from worker.store import JobStore
+from jobs.layout import job_paths
+from jobs.settings import Settings
+from jobs.store import JobStore
+from tests.declared_size import unwritten_samples, zero_filled_samples
+from worker.runner import execute_job
 
 from .conftest import FAST_TIMINGS, REPO, SHSAS, start_server, submit, wait_for, write_tiny_survey
 from .test_serve_shutdown import _alive, _worker_and_tracker

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from jobs.settings import Settings
 from service.quotas import (
     check_active_jobs,
     check_cpu_time,
@@ -15,7 +16,6 @@ from service.quotas import (
 from service.uploads import UploadError
 from shsas_core.data.survey import SceneBox
 from shsas_core.spec.job import PRESETS, ReconstructionSpec
-from worker.settings import Settings
 
 from .test_celery import LONG_SPEC, RESUMABLE_SPEC
 from .test_embedded import QUICK_SPEC

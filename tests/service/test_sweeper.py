@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from jobs.settings import Settings
+from jobs.store import JobStore
 from service.sweeper import LOCK_NAME, sweep_expired, sweep_uploads, upload_dir
-from worker.settings import Settings
-from worker.store import JobStore
 
 
 def _upload(root: Path, name: str, size: int = 1000, lock: bool = True) -> Path:

@@ -102,7 +102,7 @@ def test_every_spec_field_is_an_option_with_the_spec_bounds_and_default(command)
 def test_api_schema_is_the_spec_schema():
     """The API serves the spec's own schema (with factory defaults filled in), the one the CLI reads."""
     pytest.importorskip("fastapi")
-    from service.console import spec_schema as api_schema
+    from service.routes.console import spec_schema as api_schema
 
     api = api_schema()["properties"]
     assert {k: _bounds(v) for k, v in api.items()} == {k: _bounds(v) for k, v in spec_schema().items()}

@@ -21,14 +21,15 @@ from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
-from worker.runner import job_paths
+from jobs.layout import job_paths, survey_view_dir, validation_slots_dir
+from jobs.store import Job
 
-from .artifacts import file_response
-from .lookup import caller_job
-from .models import ErrorOut
-from .survey_view import FOLDER, GROUND_TRUTH_NAME, VIEW_NAME
-from .uploads import UploadError
-from .validation import ValidationsBusy, validation_slot, view_in_child
+from ..deps import JobDep
+from ..file_responses import file_response
+from ..models import ErrorOut
+from ..survey_view import GROUND_TRUTH_NAME, VIEW_NAME
+from ..uploads import UploadError
+from ..validation import ValidationsBusy, validation_slot, view_in_child
 
 ERRORS = {401: {"model": ErrorOut}, 404: {"model": ErrorOut}}
 
@@ -52,11 +53,10 @@ class SurveyView(BaseModel):
 router = APIRouter(tags=["surveys"])
 
 
-async def _view(request: Request, job_id: str) -> tuple[dict, Path]:
-    job = await to_thread.run_sync(caller_job, request, job_id)
+async def _view(request: Request, job: Job) -> tuple[dict, Path]:
     settings = request.app.state.settings
     in_dir, _ = job_paths(settings, job.id)
-    folder = in_dir.parent / FOLDER
+    folder = survey_view_dir(settings, job.id)
     kept = folder / VIEW_NAME
     if not kept.is_file():
         in_path = in_dir / job.input_name
@@ -75,7 +75,7 @@ async def _make_view(settings, in_path: Path, folder: Path, job_id: str) -> None
     work = in_path.parent.parent / f"survey-work-{uuid.uuid4().hex[:8]}"
     work.mkdir()
     try:
-        async with validation_slot(settings.data_dir / "validation-slots", settings.max_concurrent_validations,
+        async with validation_slot(validation_slots_dir(settings), settings.max_concurrent_validations,
                                    settings.validate_wait_s):
             made = await to_thread.run_sync(lambda: view_in_child(
                 in_path, work, settings.validate_memory_bytes, settings.validate_timeout_s,
@@ -94,17 +94,17 @@ async def _make_view(settings, in_path: Path, folder: Path, job_id: str) -> None
 
 @router.get("/reconstructions/{job_id}/survey", response_model=SurveyView, responses={
     **ERRORS, 409: {"model": ErrorOut}, 503: {"model": ErrorOut}})
-async def survey_view(job_id: str, request: Request) -> SurveyView:
+async def survey_view(job: JobDep, request: Request) -> SurveyView:
     """The job's survey: the `shsas info` summary, sensor positions, a few pings, ground truth."""
-    return SurveyView.model_validate((await _view(request, job_id))[0])
+    return SurveyView.model_validate((await _view(request, job))[0])
 
 
 @router.get("/reconstructions/{job_id}/survey/ground_truth.glb", responses={
     **ERRORS, 200: {"content": {"model/gltf-binary": {}}}, 206: {"description": "partial content"},
     304: {"description": "not modified"}, 416: {"description": "range not satisfiable"}})
-async def ground_truth(job_id: str, request: Request) -> Response:
+async def ground_truth(job: JobDep, request: Request) -> Response:
     """The survey's ground-truth mesh as GLB (404 when the survey has none)."""
-    view, folder = await _view(request, job_id)
+    view, folder = await _view(request, job)
     if view["ground_truth_url"] is None:
-        raise HTTPException(404, f"the survey of reconstruction {job_id} has no ground truth")
+        raise HTTPException(404, f"the survey of reconstruction {job.id} has no ground truth")
     return file_response(folder / GROUND_TRUTH_NAME, request.headers, GROUND_TRUTH_NAME)

@@ -8,7 +8,7 @@ import uuid
 
 import pytest
 
-from worker.store import IdempotencyConflict, JobStore
+from jobs.store import IdempotencyConflict, JobStore
 
 
 @pytest.fixture(params=["sqlite", "postgres"])

@@ -15,7 +15,7 @@ from .records import make_engine, metadata
 
 
 class StoreBase:
-    """The engine and one transaction helper; every concern of :class:`~worker.store.JobStore` uses them."""
+    """The engine and one transaction helper; every concern of :class:`~jobs.store.JobStore` uses them."""
 
     def __init__(self, url: str, schema: str | None = None, *, create: bool = True):
         self.url = url

@@ -1,5 +1,5 @@
-"""Listing and searching an owner's jobs (worker/store/listing.py) and adding columns to a store
-made by an older release (worker/store/migrate.py), on real SQLite and PostgreSQL."""
+"""Listing and searching an owner's jobs (jobs/store/listing.py) and adding columns to a store
+made by an older release (jobs/store/migrate.py), on real SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import uuid
 import pytest
 import sqlalchemy as sa
 
-from worker.store import JobStore, jobs, make_engine
+from jobs.store import JobStore, jobs, make_engine
 
 from .test_store import new_job, store  # noqa: F401 (the store fixture: SQLite and PostgreSQL)
 

@@ -19,6 +19,9 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
+from jobs.layout import extracts_dir, job_paths, survey_view_dir
+from jobs.settings import Settings
+from jobs.store import Job
 from shsas_core.evaluation.extract import ExtractConfig, extract
 from shsas_core.outputs.export import (
     read_volume_npy,
@@ -28,14 +31,11 @@ from shsas_core.outputs.export import (
 )
 from shsas_core.pipeline.job import artifact_names
 from shsas_core.spec.job import Method
-from worker.runner import job_paths
-from worker.store import Job
 
-from .artifacts import file_response, safe_artifact_path
-from .lookup import succeeded_job
-from .models import ErrorOut
-from .survey_view import FOLDER as VIEW_FOLDER
-from .survey_view import VIEW_NAME
+from ..deps import SucceededJobDep
+from ..file_responses import file_response, safe_artifact_path
+from ..models import ErrorOut
+from ..survey_view import VIEW_NAME
 
 #: Levels are rounded to this step: a slider cannot make unbounded distinct extractions.
 TAU_STEP = 0.001
@@ -76,24 +76,25 @@ def _config(job: Job, tau: float) -> ExtractConfig:
                          mesher=spec.get("mesher", default.mesher))
 
 
-def _sensors(out_dir: Path) -> np.ndarray | None:
+def _sensors(view_dir: Path) -> np.ndarray | None:
     """(M, 3) transmitter positions, m, that the surface normals face: the thinned ones of the
     survey view written at validation (the API never opens the survey itself); None without one."""
-    view = out_dir.parent / VIEW_FOLDER / VIEW_NAME
+    view = view_dir / VIEW_NAME
     if not view.is_file():
         return None
     tx = np.asarray(json.loads(view.read_text()).get("tx") or [], dtype=np.float64)
     return tx.reshape(-1, 3) if tx.size else None
 
 
-def _extract(job: Job, out_dir: Path, method: str, tau: float) -> tuple[dict, Path, bool]:
+def _extract(job: Job, settings: Settings, method: str, tau: float) -> tuple[dict, Path, bool]:
     """The kept extraction of ``method`` at ``tau``, made now if absent: (info, folder, made now)."""
     names = artifact_names(method)
+    _, out_dir = job_paths(settings, job.id)
     vol_path = safe_artifact_path(out_dir, names["volume"], job.artifacts)
     if vol_path is None or safe_artifact_path(out_dir, names["grid"], job.artifacts) is None:
         raise HTTPException(404, f"reconstruction {job.id} has no saved volume for method {method!r} "
                                  f"(its methods: {', '.join(job.spec.get('methods', []))})")
-    folder = out_dir.parent / "extracts" / f"{method}-{round(tau / TAU_STEP):04d}"
+    folder = extracts_dir(settings, job.id) / f"{method}-{round(tau / TAU_STEP):04d}"
     info_path = folder / "extraction.json"
     if info_path.is_file():
         return json.loads(info_path.read_text()), folder, False
@@ -102,7 +103,7 @@ def _extract(job: Job, out_dir: Path, method: str, tau: float) -> tuple[dict, Pa
             return json.loads(info_path.read_text()), folder, False
         t0 = time.perf_counter()
         vol = read_volume_npy(vol_path)
-        _, cloud, surface = extract(vol, _config(job, tau), _sensors(out_dir))
+        _, cloud, surface = extract(vol, _config(job, tau), _sensors(survey_view_dir(settings, job.id)))
         folder.mkdir(parents=True, exist_ok=True)
         write_point_cloud_ply(cloud, folder / "pointcloud.ply")
         glb = write_mesh_glb(surface, folder / "mesh.glb")
@@ -112,22 +113,20 @@ def _extract(job: Job, out_dir: Path, method: str, tau: float) -> tuple[dict, Pa
     return info, folder, True
 
 
-def _run(request: Request, job_id: str, method: str, threshold: float) -> tuple[dict, Path, str, bool]:
-    job = succeeded_job(request, job_id)
+def _run(request: Request, job: Job, method: str, threshold: float) -> tuple[dict, Path, str, bool]:
     if method not in job.spec.get("methods", []):
         raise HTTPException(404, f"method {method!r} was not run in reconstruction {job.id} "
                                  f"(its methods: {', '.join(job.spec.get('methods', []))})")
-    _, out_dir = job_paths(request.app.state.settings, job.id)
     tau = _level(threshold)
-    info, folder, made = _extract(job, out_dir, method, tau)
+    info, folder, made = _extract(job, request.app.state.settings, method, tau)
     return info, folder, f"/reconstructions/{job.id}/extract/{{}}?method={method}&threshold={tau:g}", made
 
 
 @router.get("/reconstructions/{job_id}/extract", response_model=Extraction, responses=ERRORS)
-def extract_summary(job_id: str, request: Request, method: MethodQ, threshold: LevelQ) -> Extraction:
+def extract_summary(job: SucceededJobDep, request: Request, method: MethodQ, threshold: LevelQ) -> Extraction:
     """Re-extract one method's point cloud and mesh at another iso level from the job's saved
     volume (seconds; no retraining). 409 unless the job succeeded."""
-    info, _, url, made = _run(request, job_id, method, threshold)
+    info, _, url, made = _run(request, job, method, threshold)
     return Extraction(**{**info, "seconds": info["seconds"] if made else 0.0},
                       mesh_url=url.format("mesh.glb"), pointcloud_url=url.format("pointcloud.ply"))
 
@@ -138,9 +137,9 @@ FILE_RESPONSES = {**ERRORS, 200: {"content": {"model/gltf-binary": {}, "applicat
 
 
 @router.get("/reconstructions/{job_id}/extract/{name}", responses=FILE_RESPONSES)
-def extract_file(job_id: str, name: Literal["mesh.glb", "pointcloud.ply"], request: Request,
+def extract_file(job: SucceededJobDep, name: Literal["mesh.glb", "pointcloud.ply"], request: Request,
                  method: MethodQ, threshold: LevelQ) -> Response:
     """The re-extracted mesh (GLB) or point cloud (PLY, scalar ``scalar_magnitude``) at a level."""
-    info, folder, _, _ = _run(request, job_id, method, threshold)
+    info, folder, _, _ = _run(request, job, method, threshold)
     stem, ext = name.split(".")
     return file_response(folder / name, request.headers, f"{method}_{stem}_{info['threshold']:g}.{ext}")

@@ -10,12 +10,12 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
+from jobs.layout import job_paths
+from jobs.settings import Settings
+from jobs.store import JobStore, jobs
 from shsas_core.outputs.report import load_report
-from worker.runner import execute_job, job_paths
-from worker.settings import Settings
-from worker.store import JobStore, jobs
-
-from .conftest import write_tiny_survey
+from tests.service.conftest import write_tiny_survey
+from worker.runner import execute_job
 
 QUICK = {"methods": ["backprojection"], "grid": 16, "device": "cpu"}
 LONG = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
@@ -143,8 +143,8 @@ def test_past_the_hard_time_limit_the_heartbeat_fails_the_job_and_ends_the_proce
 import time
 from pathlib import Path
 from worker.runner import JobControl
-from worker.settings import Settings
-from worker.store import JobStore
+from jobs.settings import Settings
+from jobs.store import JobStore
 settings = Settings(data_dir=Path({str(tmp_path / 'data')!r}), heartbeat_interval_s=0.1,
                     job_soft_time_limit_s=0.2, job_hard_time_limit_s=0.3)
 store = JobStore.from_settings(settings)

@@ -16,8 +16,8 @@ from fastapi.staticfiles import StaticFiles
 
 from shsas_core.spec.job import ReconstructionSpec
 
-#: Where `make console` writes the built page (package data; git-ignored).
-STATIC = Path(__file__).resolve().parent / "static"
+#: Where `make console` writes the built page (package data in ``service/console/``; git-ignored).
+STATIC = Path(__file__).resolve().parent.parent / "console" / "static"
 #: The page loads nothing from elsewhere; this makes the browser refuse it if it ever tried.
 CSP = ("default-src 'self'; img-src 'self' blob: data:; style-src 'self' 'unsafe-inline'; "
        "script-src 'self'; connect-src 'self'; frame-src blob:; object-src 'none'; base-uri 'none'")

@@ -1,7 +1,7 @@
 """Service configuration from the environment (``SHSAS_*``), via pydantic-settings.
 
-One :class:`Settings` object (here, because `service` -> `worker` -> `shsas_core`) is shared by the API, the Celery worker, the embedded local
-worker and the ``shsas`` commands that start them, so a deployment is configured in one place.
+One :class:`Settings` object is shared by the API, the Celery worker, the embedded local worker
+and the ``shsas`` commands that start them, so a deployment is configured in one place.
 """
 
 from __future__ import annotations
