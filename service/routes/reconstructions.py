@@ -18,6 +18,7 @@ from fastapi import APIRouter, Header, HTTPException, Query, Request
 from fastapi.responses import JSONResponse, Response
 
 from shsas_core.common.errors import pydantic_fix
+from shsas_core.formats.registry import stored_name
 from shsas_core.spec.job import ReconstructionSpec
 from worker.dispatch import dispatch
 from worker.runner import job_paths, remove_job_files
@@ -37,9 +38,6 @@ from ..validation import ValidationsBusy, validate_in_child, validation_slot
 log = logging.getLogger("shsas.api")
 router = APIRouter()
 
-#: Every upload is stored as a canonical file: a canonical upload as it came, any other format
-#: (every format `shsas convert` reads) as the canonical file its validation converted it to.
-INPUT_NAME = "survey.h5"
 #: Seconds a client is told to wait (Retry-After) when every validation slot stayed busy.
 VALIDATIONS_BUSY_RETRY_S = 10
 
@@ -135,7 +133,9 @@ async def _submit(request: Request, who: str, store: StoreDep, settings: Setting
         job_id = uuid.uuid4().hex
         in_dir, _ = job_paths(settings, job_id)
         in_dir.mkdir(parents=True)
-        input_name = INPUT_NAME
+        # the format registry names the stored input: a canonical upload as it came, any other
+        # format as the canonical file its validation converted it to
+        input_name = stored_name(checked.format)
         checked.input_path.replace(in_dir / input_name)
         checked.view_dir.replace(in_dir.parent / VIEW_FOLDER)
         try:
