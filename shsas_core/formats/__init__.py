@@ -17,9 +17,9 @@ from shsas_core.formats.options import FormatOptions, ImportOptions
 from shsas_core.formats.registry import (
     Claim,
     Format,
+    all_formats,
     detect_format,
     format_names,
-    formats,
     get_format,
     load_survey,
     register,
@@ -32,5 +32,5 @@ from shsas_core.formats.registry import (
 for _fmt in (canonical.FORMAT, svss.FORMAT, airsas_deconvolved.FORMAT, airsas_csv.FORMAT, airsas_pickle.FORMAT):
     register(_fmt)
 
-__all__ = ["Claim", "Format", "FormatOptions", "ImportOptions", "detect_format", "format_names", "formats",
+__all__ = ["Claim", "Format", "FormatOptions", "ImportOptions", "all_formats", "detect_format", "format_names",
            "get_format", "load_survey", "register", "stored_name", "unregister"]

@@ -23,7 +23,7 @@ DOC = "docs/formats.md"
 class FormatOptions(BaseModel):
     """Options of a format that takes none (the canonical file); the base of every options model."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, arbitrary_types_allowed=True)
+    model_config = ConfigDict(extra="forbid", frozen=True)
 
     def values(self) -> dict[str, Any]:
         """The options as keywords for the reader, values as validated (models stay models)."""

@@ -76,7 +76,7 @@ def unregister(name: str) -> None:
     _REGISTRY.pop(name, None)
 
 
-def formats() -> tuple[Format, ...]:
+def all_formats() -> tuple[Format, ...]:
     """Every registered format, in registration order."""
     return tuple(_REGISTRY.values())
 

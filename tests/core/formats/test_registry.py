@@ -18,9 +18,9 @@ from shsas_core.formats import (
     Claim,
     Format,
     ImportOptions,
+    all_formats,
     detect_format,
     format_names,
-    formats,
     get_format,
     load_survey,
     register,
@@ -79,7 +79,7 @@ def test_every_built_in_format_has_samples_here(samples) -> None:
 def test_each_format_is_claimed_by_its_own_sniff_only(samples, name) -> None:
     for path in samples[name]:
         probe = Probe(path)
-        sure = [f.name for f in formats() if f.sniff(probe) == Claim.YES]
+        sure = [f.name for f in all_formats() if f.sniff(probe) == Claim.YES]
         assert sure == [name], (path.name, sure)
         assert detect_format(path) == name
         assert load_survey(path, load_samples=False).num_pings > 0
@@ -96,12 +96,12 @@ def test_unclaimed_files_fall_back_to_the_reader_that_names_what_is_missing(tmp_
     assert detect_format(_zip(tmp_path, tmp_path.parent / "misc.zip")) == "airsas-csv"
     with pytest.raises(UnsupportedFormatError, match="not a recognised survey") as ei:
         detect_format(tmp_path / "notes.txt")
-    for f in formats():  # the message lists every registered format
+    for f in all_formats():  # the message lists every registered format
         assert f.summary in str(ei.value)
 
 
 def test_every_format_stores_its_input_as_the_canonical_file() -> None:
-    assert {f.name: f.stored_name for f in formats()} == dict.fromkeys(format_names(), STORED_NAME)
+    assert {f.name: f.stored_name for f in all_formats()} == dict.fromkeys(format_names(), STORED_NAME)
     assert stored_name("airsas-deconvolved") == "survey.h5"
 
 
