@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from shsas_core.data.pulse import lfm_pulse  # noqa: E402
-from shsas_core.formats.airsas import read_airsas_csv  # noqa: E402
+from shsas_core.formats.airsas_csv import read_airsas_csv  # noqa: E402
 
 FS, T = 100e3, 1_500
 

@@ -106,7 +106,7 @@ def child(case: str, algorithm: str, cap_gb: float, meshes: Path) -> None:
     v, f = load_case(case, meshes)
     box = default_scene_box(np.stack([v.min(0), v.max(0)]), 0.02)
     if algorithm == "reference":
-        # GroundTruth -> OccupancyGrid.from_mesh looks the function up in the module at call time
+        # GroundTruth -> ScoringGrid.from_mesh looks the function up in the module at call time
         metrics.within_distance_of_mesh = reference_within_distance_of_mesh
     before = rss_gb()
     t, c = time.perf_counter(), time.process_time()
@@ -119,7 +119,7 @@ def child(case: str, algorithm: str, cap_gb: float, meshes: Path) -> None:
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2  # Linux: KiB
     out = {"case": case, "algorithm": algorithm, "faces": len(f), "status": status, "wall_s": wall,
            "cpu_s": cpu, "peak_gb": peak, "before_gb": before}
-    grid = metrics.OccupancyGrid(box)
+    grid = metrics.ScoringGrid(box)
     out["grid_points"] = int(np.prod(grid.shape))
     if gt is not None:
         # counted after the peak was read: these do not change it

@@ -25,6 +25,7 @@ from jobs.layout import (
 from jobs.settings import Settings
 from jobs.store import IdempotencyConflict, Job, JobStore
 from shsas_core.common.errors import pydantic_fix
+from shsas_core.formats.registry import stored_name
 from shsas_core.spec.job import ReconstructionSpec
 from worker.dispatch import dispatch
 
@@ -36,9 +37,6 @@ from .validation import ValidationsBusy, validate_in_child, validation_slot
 
 log = logging.getLogger("shsas.api")
 
-#: Every upload is stored as a canonical file: a canonical upload as it came, any other format
-#: (every format `shsas convert` reads) as the canonical file its validation converted it to.
-INPUT_NAME = "survey.h5"
 #: Seconds a client is told to wait (Retry-After) when every validation slot stayed busy.
 VALIDATIONS_BUSY_RETRY_S = 10
 
@@ -122,7 +120,9 @@ async def _submit(request: Request, who: str, store: JobStore, settings: Setting
         job_id = uuid.uuid4().hex
         in_dir, _ = job_paths(settings, job_id)
         in_dir.mkdir(parents=True)
-        input_name = INPUT_NAME
+        # the format registry names the stored input: a canonical upload as it came, any other
+        # format as the canonical file its validation converted it to
+        input_name = stored_name(checked.format)
         checked.input_path.replace(in_dir / input_name)
         checked.view_dir.replace(survey_view_dir(settings, job_id))
         try:

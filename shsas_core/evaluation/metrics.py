@@ -371,8 +371,11 @@ class _Cells:
 
 # --------------------------------------------------------------------------------------------
 # occupancy
-class OccupancyGrid:
-    """Voxels of size ``voxel`` (m) tiling ``box`` from its min corner (the last layer may reach
+class ScoringGrid:
+    """The voxels the occupancy scores are counted on (the neural field's occupancy mask is
+    another thing, :mod:`shsas_core.neural.fields.occupancy`).
+
+    Voxels of size ``voxel`` (m) tile ``box`` from its min corner (the last layer may reach
     past the max corner). Voxel (i,j,k) spans ``min + [ijk, ijk+1) * voxel``."""
 
     def __init__(self, box: SceneBox, voxel: float = VOXEL):
@@ -486,7 +489,7 @@ class GroundTruth:
         self.samples, tri = sample_surface_faces(self.vertices, self.faces, n_samples, seed)
         self.sample_normals = face_normals(self.vertices, self.faces)[tri]
         self.area = _area(self.vertices, self.faces)
-        self.grid = OccupancyGrid(box, voxel)
+        self.grid = ScoringGrid(box, voxel)
         self.surface = self.grid.band_from_mesh(self.vertices, self.faces, SURFACE_BAND)
         # the solid's shell is one voxel wide; with the surface band of the same width the
         # exact distance test runs once

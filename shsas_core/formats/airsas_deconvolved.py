@@ -42,6 +42,11 @@ from shsas_core.data.survey import (
     default_pulse,
     parse_meta,
 )
+from shsas_core.formats.airsas_rig import sound_speed_air
+from shsas_core.formats.canonical import STORED_NAME
+from shsas_core.formats.options import ImportOptions
+from shsas_core.formats.probe import Probe
+from shsas_core.formats.registry import Claim, Format
 from shsas_core.formats.tree import Node, open_tree, shallowest
 
 #: ``weights_trans_{first ping}_{last ping}.npy``: one file per height level.
@@ -81,7 +86,7 @@ class DeconvolvedGeometry(BaseModel):
 
     @property
     def c(self) -> float:
-        return float(self.sound_speed if self.sound_speed is not None else 331.4 + 0.6 * self.temperature_c)
+        return float(self.sound_speed if self.sound_speed is not None else sound_speed_air(self.temperature_c))
 
 
 def load_geometry(path: str | os.PathLike | None) -> DeconvolvedGeometry:
@@ -235,3 +240,28 @@ def _read(folder: Node, geo: DeconvolvedGeometry, load_samples: bool, progress: 
             samples[k * per_level:(k + 1) * per_level] = analytic_signal(a.astype(np.float32))
             progress((k + 1) / len(files), "import:airsas-deconvolved", {})
     return Survey(tx=tx, rx=rx, samples=samples, t0=t0, meta=meta, pulse=pulse, shape=(n, t))
+
+
+# ---------------------------------------------------------------------------------------------
+# the registered format
+
+
+class DeconvolvedOptions(ImportOptions):
+    """Options of :func:`read_deconvolved_folder`."""
+
+    geometry: DeconvolvedGeometry | Path | None = Field(
+        None, description="the geometry, or a JSON file of its fields; None: the defaults")
+
+
+def sniff(probe: Probe) -> Claim:
+    if probe.kind not in ("folder", "zip"):
+        return Claim.NO
+    return Claim.YES if any(FILE_NAME.match(n) for n in probe.names) else Claim.NO
+
+
+def read(path: Path, options: DeconvolvedOptions, load_samples: bool, progress: ProgressFn) -> Survey:
+    return read_deconvolved_folder(path, **options.values(), load_samples=load_samples, progress=progress)
+
+
+FORMAT = Format(name="airsas-deconvolved", summary="an AirSAS deconvolved-ping folder or .zip (weights_trans_*_*.npy)",
+                sniff=sniff, read=read, options=DeconvolvedOptions, stored_name=STORED_NAME)

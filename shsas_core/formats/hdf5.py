@@ -27,8 +27,9 @@ from shsas_core.data.survey import (
     parse_meta,
     pulse_disagreement,
 )
+from shsas_core.formats.canonical import FORMAT_ATTRIBUTE
 
-FORMAT_NAME = "shsas-survey"
+FORMAT_NAME = FORMAT_ATTRIBUTE
 SCHEMA_VERSION = 1
 
 _FLOAT = (np.float32, np.float64)

@@ -29,15 +29,23 @@ import math
 import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import h5py
 import numpy as np
+from pydantic import Field
 
 from shsas_core.common.errors import SurveyValidationError, UnsafeFileError
+from shsas_core.common.progress import ProgressFn
 from shsas_core.data.survey import PulseParams, SceneBox, Survey, check_sizes, parse_meta
-from shsas_core.formats.hdf5 import check_hdf5_safety
+from shsas_core.formats.canonical import STORED_NAME
+from shsas_core.formats.options import ImportOptions
+from shsas_core.formats.probe import Probe
+from shsas_core.formats.registry import Claim, Format
 from shsas_core.formats.safe_zip import is_zip
 from shsas_core.formats.tree import Node, open_tree, shallowest
+
+if TYPE_CHECKING:
+    import h5py
 
 FS_HZ = 125e3
 CARRIER_HZ = 27.5e3
@@ -105,6 +113,10 @@ def _track_of(path: Path) -> tuple[Path, int | None]:
 
 
 def _open(path: Path) -> h5py.File:
+    import h5py
+
+    from shsas_core.formats.hdf5 import check_hdf5_safety
+
     if not h5py.is_hdf5(path):
         raise SurveyValidationError(path.name, "is not an HDF5 file")
     try:
@@ -121,6 +133,8 @@ def _open(path: Path) -> h5py.File:
 
 
 def _ds(f: h5py.File, name: str, fname: str) -> h5py.Dataset:
+    import h5py
+
     obj = f.get(name)
     if not isinstance(obj, h5py.Dataset):
         raise SurveyValidationError(f"{fname}: {name}", "is missing" if obj is None else "must be a dataset")
@@ -328,3 +342,34 @@ def _read(folder: Node, num: int, temperature_f: float | None, scene_box: SceneB
         raise SurveyValidationError("temperature_f", f"{temperature_f} gives no valid sound speed")
     return Survey(tx=tx, rx=rx, samples=samples, t0=np.zeros(rows), meta=meta, pulse=pulse,
                   tx_dir=dirs, rx_dir=dirs.copy(), shape=(rows, t))
+
+
+# ---------------------------------------------------------------------------------------------
+# the registered format
+
+
+class SVSSOptions(ImportOptions):
+    """Options of :func:`read_svss` (its docstring gives their meaning)."""
+
+    image_number: int | None = Field(None, ge=0, description="image N when the track folder holds several")
+    temperature_f: float | None = Field(None, allow_inf_nan=False,
+                                        description="water temperature, °F; None: the track's table, else 55 °F")
+
+
+def sniff(probe: Probe) -> Claim:
+    if probe.kind in ("folder", "zip"):
+        return Claim.YES if any(_UNPACK.match(n) or _MOTION.match(n) for n in probe.names) else Claim.NO
+    if probe.kind != "hdf5":
+        return Claim.NO
+    if _UNPACK.match(probe.name) or _MOTION.match(probe.name):
+        return Claim.YES
+    root = probe.hdf5_root
+    return Claim.YES if root is not None and ("DataReal" in root.names or "Position" in root.names) else Claim.NO
+
+
+def read(path: Path, options: SVSSOptions, load_samples: bool, progress: ProgressFn) -> Survey:
+    return read_svss(path, **options.values(), load_samples=load_samples)
+
+
+FORMAT = Format(name="svss", summary="an SVSS track folder, .zip or HDF5 file ('unpack float - LF - down - N.hdf5')",
+                sniff=sniff, read=read, options=SVSSOptions, stored_name=STORED_NAME)

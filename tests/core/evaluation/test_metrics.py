@@ -8,7 +8,7 @@ from shsas_core.common.errors import ShsasError
 from shsas_core.data.survey import SceneBox
 from shsas_core.evaluation.metrics import (
     GroundTruth,
-    OccupancyGrid,
+    ScoringGrid,
     chamfer,
     fscore,
     nn_distances,
@@ -112,7 +112,7 @@ def test_gt_occupancy_equals_contains_or_band_for_watertight_mesh():
     box = SceneBox(min=(-0.06, -0.06, 0.0), max=(0.06, 0.06, 0.1))
     m = trimesh.creation.icosphere(subdivisions=3, radius=0.035)
     m.apply_translation([0.003, -0.002, 0.05])
-    grid = OccupancyGrid(box, 0.005)
+    grid = ScoringGrid(box, 0.005)
     occ = grid.from_mesh(m.vertices, m.faces)
     c = grid.centres()
     ref = m.contains(c) | within_distance_of_mesh(c, m.vertices, m.faces, 0.005)
@@ -259,7 +259,7 @@ def test_within_distance_equals_reference_on_a_sliver_cone_grid():
 
     # the ground truth's use: voxel centres within one voxel, where exact ties are likely
     m = trimesh.creation.cone(radius=0.04, height=0.12, sections=96)
-    grid = OccupancyGrid(SceneBox(min=(-0.06, -0.06, -0.02), max=(0.06, 0.06, 0.14)), 0.008)
+    grid = ScoringGrid(SceneBox(min=(-0.06, -0.06, -0.02), max=(0.06, 0.06, 0.14)), 0.008)
     c = grid.centres()
     got = within_distance_of_mesh(c, m.vertices, m.faces, grid.voxel)
     np.testing.assert_array_equal(got, reference_within_distance_of_mesh(c, m.vertices, m.faces, grid.voxel))
@@ -275,7 +275,7 @@ def test_band_search_on_slivers_measures_only_nearby_triangles():
 
     m = trimesh.creation.cone(radius=0.04, height=0.12, sections=512)  # 1,024 slivers
     box = SceneBox(min=(-0.06, -0.06, -0.02), max=(0.06, 0.06, 0.14))
-    c = OccupancyGrid(box).centres()
+    c = ScoringGrid(box).centres()
     radius = 0.005
     pi, ti = mesh_candidate_pairs(c, m.vertices, m.faces, radius)
     tri = m.vertices[m.faces]
@@ -315,7 +315,7 @@ def test_perfectly_placed_surface_sample_scores_surface_f1_near_one(shared):
 def test_surface_band_from_points_matches_brute_force():
     rng = np.random.default_rng(4)
     box = SceneBox(min=(0.0, 0.0, 0.0), max=(0.04, 0.03, 0.035))
-    grid = OccupancyGrid(box, 0.005)
+    grid = ScoringGrid(box, 0.005)
     pts = rng.uniform(-0.005, 0.045, (40, 3))
     got = grid.band_from_points(pts, 0.005)
     want = (brute_nn(grid.centres(), pts) <= 0.005).reshape(grid.shape)

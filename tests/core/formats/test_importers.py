@@ -12,7 +12,8 @@ import pytest
 
 from shsas_core.common.errors import SurveyValidationError, UnsafeFileError
 from shsas_core.formats import detect_format, load_survey
-from shsas_core.formats.airsas import parse_waveform_params, read_airsas_csv, read_airsas_pickle
+from shsas_core.formats.airsas_csv import parse_waveform_params, read_airsas_csv
+from shsas_core.formats.airsas_pickle import read_airsas_pickle
 from shsas_core.formats.hdf5 import read_survey, write_survey
 from shsas_core.formats.safe_pickle import safe_loads
 from shsas_core.formats.svss import read_svss, sound_speed_fresh_water
