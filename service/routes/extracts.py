@@ -23,13 +23,13 @@ from jobs.layout import extracts_dir, job_paths, survey_view_dir
 from jobs.settings import Settings
 from jobs.store import Job
 from shsas_core.evaluation.extract import ExtractConfig, extract
+from shsas_core.outputs.artifacts import artifact_names
 from shsas_core.outputs.export import (
     read_volume_npy,
     write_json,
     write_mesh_glb,
     write_point_cloud_ply,
 )
-from shsas_core.pipeline.job import artifact_names
 from shsas_core.spec.job import Method
 
 from ..deps import SucceededJobDep

@@ -62,6 +62,7 @@ from shsas_core.evaluation.metrics import (
     score_reconstruction,
 )
 from shsas_core.neural.fields.volume import field_volume
+from shsas_core.outputs.artifacts import artifact_names
 from shsas_core.outputs.export import (
     read_volume_npy,
     write_mesh_glb,
@@ -113,17 +114,6 @@ class PipelineResult(BaseModel):
     device: str = Field(description="the torch device that ran the job: cpu or cuda:N (card)")
     warnings: dict[str, list[ResultWarning]] = Field(
         default_factory=dict, description="method -> signs that its result failed (empty list: none found)")
-
-
-def artifact_names(method: str) -> dict[str, str]:
-    """The fixed file names one method writes into ``out_dir``."""
-    return {
-        "volume": f"{method}_volume.npy",
-        "grid": f"{method}_volume.json",
-        "pointcloud": f"{method}_pointcloud.ply",
-        "mesh_ply": f"{method}_mesh.ply",
-        "mesh_glb": f"{method}_mesh.glb",
-    }
 
 
 def sh_degree_of(method: str, spec: ReconstructionSpec) -> int | None:

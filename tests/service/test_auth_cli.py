@@ -103,3 +103,14 @@ def test_import_contract_holds() -> None:
     r = subprocess.run([str(Path(sys.executable).with_name("lint-imports"))], cwd=REPO,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "0 broken" in r.stdout, r.stdout + r.stderr
+
+
+def test_the_api_process_loads_neither_torch_nor_h5py() -> None:
+    # the API never opens survey content and never computes: importing the app (every router
+    # included) must not pull in the science's compute stack
+    code = ("import sys, service.app;"
+            "bad = [m for m in ('torch', 'h5py', 'trimesh', 'celery') if m in sys.modules];"
+            "print(bad); sys.exit(1 if bad else 0)")
+    r = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60,
+                       env={"PYTHONPATH": str(REPO), "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 0, r.stdout + r.stderr

@@ -8,9 +8,10 @@ import trimesh
 
 from shsas_core.common.errors import Cancelled
 from shsas_core.evaluation.diagnostics import mesh_warnings
+from shsas_core.outputs.artifacts import artifact_names
 from shsas_core.outputs.export import read_point_cloud_ply, read_volume_npy
 from shsas_core.outputs.report import load_report
-from shsas_core.pipeline.job import PipelineResult, artifact_names, holdout_split, run
+from shsas_core.pipeline.job import PipelineResult, holdout_split, run
 from shsas_core.simulation.simulate import simulate_shape
 from shsas_core.spec.job import ReconstructionSpec
 

@@ -66,7 +66,8 @@ import torch
 
 torch.set_num_threads(1)
 from shsas_core.neural.fields import encoding
-from shsas_core.pipeline.job import artifact_names, run
+from shsas_core.pipeline.job import run
+from shsas_core.outputs.artifacts import artifact_names
 from shsas_core.simulation.simulate import simulate_shape
 from shsas_core.spec.job import ReconstructionSpec
 
