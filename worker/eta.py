@@ -1,0 +1,63 @@
+"""A running job's time left, from the pace its current stage has measured.
+
+The pipeline reports one fraction for the whole job, its stages weighted by fixed guesses of
+their cost; the stages run at very different speeds per unit of that fraction (a backprojection
+takes seconds for its share, training minutes or hours for the same share). An ETA from the
+whole job's average pace therefore drifts all through a stage. Here the pace is the current
+stage's own, measured over the later half of the time it has run (so a slow first step, a
+kernel compiling or a cache filling, fades out), and the rest of the job is assumed to go at
+that pace. The wait for a stage's first step is left out of its pace. Until the stage has measured its pace there is no ETA (``None``: "estimating"),
+rather than a figure that will swing once the pace is known.
+"""
+
+from __future__ import annotations
+
+#: A stage must have run this long (s) before its pace says anything.
+MIN_STAGE_S = 2.0
+#: ... and advanced the job's fraction by at least this much over the measured window.
+MIN_ADVANCE = 1e-4
+#: Samples kept per stage; older ones are thinned (every other one dropped) past this.
+MAX_SAMPLES = 256
+#: Samples closer in time than this (s) replace each other (training reports every step).
+SAMPLE_EVERY_S = 0.2
+
+
+class EtaEstimator:
+    """Feed it ``update(now, fraction, stage)`` with every progress report; it answers the
+    seconds left (``None`` while the current stage has not measured its pace)."""
+
+    def __init__(self) -> None:
+        self.stage: str | None = None
+        self.samples: list[tuple[float, float]] = []  # (time s, job fraction) within the stage
+
+    def update(self, now: float, fraction: float, stage: str) -> float | None:
+        if stage != self.stage:
+            self.stage, self.samples = stage, []
+        if self.samples and now - self.samples[-1][0] < SAMPLE_EVERY_S:
+            self.samples[-1] = (self.samples[-1][0], fraction)
+        else:
+            self.samples.append((now, fraction))
+            if len(self.samples) > MAX_SAMPLES:
+                self.samples = self.samples[:1] + self.samples[2::2]
+        return self.eta(now, fraction)
+
+    def eta(self, now: float, fraction: float) -> float | None:
+        if fraction >= 1.0:
+            return 0.0
+        # the pace is measured from the stage's first step on: the wait for that first step
+        # (a kernel compiling, a cache filling) says nothing about the steps after it
+        first = next((i for i, s in enumerate(self.samples) if s[1] > self.samples[0][1]), None)
+        if first is None:
+            return None
+        steps = self.samples[first:]
+        t0 = steps[0][0]
+        if now - t0 < MIN_STAGE_S:
+            return None
+        # over (about) the later half of that: from the last sample at or before its middle, so
+        # the window is never shorter than half of it and a slow start fades out
+        half = t0 + (now - t0) / 2
+        start = max((s for s in steps if s[0] <= half), key=lambda s: s[0])
+        dt, dp = now - start[0], fraction - start[1]
+        if dp < MIN_ADVANCE or dt <= 0:
+            return None
+        return dt / dp * (1.0 - fraction)
