@@ -4,18 +4,25 @@ The pipeline reports one fraction for the whole job, its stages weighted by fixe
 their cost; the stages run at very different speeds per unit of that fraction (a backprojection
 takes seconds for its share, training minutes or hours for the same share). An ETA from the
 whole job's average pace therefore drifts all through a stage. Here the pace is the current
-stage's own, measured over the later half of the time it has run (so a slow first step, a
-kernel compiling or a cache filling, fades out), and the rest of the job is assumed to go at
-that pace. The wait for a stage's first step is left out of its pace. Until the stage has measured its pace there is no ETA (``None``: "estimating"),
+stage's own, measured over the later three quarters of the time it has run (so a slow start
+fades out) and over at least ten steps (single steps vary a lot on a loaded machine), and the
+rest of the job is assumed to go at that pace. The wait for a stage's first step is left out
+of its pace. Until the stage has measured its pace there is no ETA (``None``: "estimating"),
 rather than a figure that will swing once the pace is known.
 """
 
 from __future__ import annotations
 
-#: A stage must have run this long (s) before its pace says anything.
-MIN_STAGE_S = 2.0
-#: ... and advanced the job's fraction by at least this much over the measured window.
-MIN_ADVANCE = 1e-4
+import itertools
+
+#: A stage must have run this long (s) after its first step before its pace says anything ...
+MIN_STAGE_S = 5.0
+#: ... and the measured window must hold this many steps (reports that advanced the fraction):
+#: on a loaded machine single steps vary by 2-5x.
+MIN_STEPS = 10
+#: The window is the later part of the stage from this share of its time on, so a slow start
+#: fades out while enough steps stay in it to average the noise.
+WINDOW_FROM = 0.25
 #: Samples kept per stage; older ones are thinned (every other one dropped) past this.
 MAX_SAMPLES = 256
 #: Samples closer in time than this (s) replace each other (training reports every step).
@@ -53,11 +60,20 @@ class EtaEstimator:
         t0 = steps[0][0]
         if now - t0 < MIN_STAGE_S:
             return None
-        # over (about) the later half of that: from the last sample at or before its middle, so
-        # the window is never shorter than half of it and a slow start fades out
-        half = t0 + (now - t0) / 2
-        start = max((s for s in steps if s[0] <= half), key=lambda s: s[0])
-        dt, dp = now - start[0], fraction - start[1]
-        if dp < MIN_ADVANCE or dt <= 0:
+        # over the later part of that: from the last sample at or before WINDOW_FROM of it,
+        # earlier while the window holds fewer than MIN_STEPS steps
+        cut = t0 + (now - t0) * WINDOW_FROM
+        i = max(k for k, s in enumerate(steps) if s[0] <= cut)
+        while i > 0 and _advances(steps[i:]) < MIN_STEPS:
+            i -= 1
+        if _advances(steps[i:]) < MIN_STEPS:
+            return None
+        dt, dp = now - steps[i][0], fraction - steps[i][1]
+        if dp <= 0 or dt <= 0:
             return None
         return dt / dp * (1.0 - fraction)
+
+
+def _advances(samples: list[tuple[float, float]]) -> int:
+    """How many of ``samples`` moved the fraction on from the one before."""
+    return sum(1 for a, b in itertools.pairwise(samples) if b[1] > a[1])

@@ -4,9 +4,12 @@ pipeline's (stages whose fixed weights are far from their real run times, a slow
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import pytest
 
-from worker.eta import MIN_STAGE_S, EtaEstimator
+from worker.eta import MIN_STAGE_S, MIN_STEPS, EtaEstimator
 
 #: The issue's bound: within a stage the ETA does not swing by more than this factor.
 MAX_SWING = 2.0
@@ -69,7 +72,7 @@ THREE_METHODS = [("load", 0.0, 0.0, 1.0, 0.0), ("deconvolution", 0.0, 0.05, 3.0,
 
 def test_eta_steady_within_each_stage() -> None:
     by_stage = readings(trace(THREE_METHODS), ours())
-    assert {"fit:reed", "fit:shsas", "backprojection"} <= set(by_stage)  # it does give figures
+    assert {"fit:reed", "fit:shsas"} <= set(by_stage)  # it does give figures (short stages: none)
     assert worst_swing(by_stage) <= MAX_SWING
 
 
@@ -92,10 +95,29 @@ def test_no_figure_before_the_stage_has_a_pace() -> None:
     est = EtaEstimator()
     assert est.update(0.0, 0.4, "fit:reed") is None
     assert est.update(MIN_STAGE_S + 5, 0.4, "fit:reed") is None  # waiting for its first step
-    assert est.update(MIN_STAGE_S + 6, 0.41, "fit:reed") is None  # one step: no pace yet
-    assert est.update(2 * MIN_STAGE_S + 7, 0.42, "fit:reed") is not None
-    assert est.update(2 * MIN_STAGE_S + 8, 0.5, "report") is None  # a new stage starts over
-    assert est.update(2 * MIN_STAGE_S + 9, 1.0, "done") == 0.0
+    t, p = MIN_STAGE_S + 5, 0.4
+    for _ in range(MIN_STEPS):  # steps, but not yet MIN_STAGE_S of them
+        t, p = t + 0.3, p + 0.001
+        assert est.update(t, p, "fit:reed") is None
+    for _ in range(MIN_STEPS):
+        t, p = t + 0.3, p + 0.001
+        eta = est.update(t, p, "fit:reed")
+    assert eta == pytest.approx(0.3 / 0.001 * (1 - p))
+    assert est.update(t + 1, 0.5, "report") is None  # a new stage starts over
+    assert est.update(t + 2, 1.0, "done") == 0.0
+
+
+#: Progress reports of a real job on this project's loaded 2-core machine (the demo bunny,
+#: backprojection then SH-SAS at grid 16, 16 rays x 8 bins, recorded through the pipeline's
+#: progress callback for 100 s): the warm start's steps took 0.2-1.1 s each.
+REAL_TRACE = Path(__file__).with_name("eta_trace.json")
+
+
+def test_eta_steady_on_a_real_trace() -> None:
+    tr = [tuple(x) for x in json.loads(REAL_TRACE.read_text())]
+    by_stage = readings(tr, ours())
+    assert len(by_stage["warm start:shsas"]) > 100
+    assert worst_swing(by_stage) <= MAX_SWING
 
 
 def test_noisy_pace_stays_within_bound() -> None:
