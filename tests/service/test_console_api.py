@@ -203,3 +203,22 @@ def test_presets_and_estimates(client) -> None:
     assert sized["survey_known"] and sized["parts"]["backprojection_s"] > 0 and sized["parts"]["signal_s"] > 0
     bad = client.post("/estimates", json={"spec": {"grid": 2, "iters": -1}})
     assert bad.status_code == 422 and "spec.grid" in bad.json()["detail"] and "spec.iters" in bad.json()["detail"]
+
+
+def test_reextract_scores_follow_the_level(client, done) -> None:
+    """With ground truth, a re-extraction carries the report's metrics at its level: at the
+    job's own level they agree with the report's; at another level they change."""
+    report = client.get(f"/reconstructions/{done['id']}/artifacts/report.json").json()
+    bp = next(m for m in report["methods"] if m["method"] == "backprojection")
+    assert bp["metrics"].get("pc_surface_f1") is not None  # the demo survey has ground truth
+    url = f"/reconstructions/{done['id']}/extract"
+    own = client.get(url, params={"method": "backprojection", "threshold": round(bp["threshold"], 3)}).json()
+    other = client.get(url, params={"method": "backprojection", "threshold": 0.8}).json()
+    for key in ("pc_surface_f1", "pc_fscore", "pc_chamfer_l2", "mesh_surface_f1", "mesh_pieces"):
+        assert own["metrics"][key] is not None, key
+    # the level is rounded to 0.001 and the ground truth goes through a float32 GLB: close, not equal
+    assert own["metrics"]["pc_surface_f1"] == pytest.approx(bp["metrics"]["pc_surface_f1"], abs=0.03)
+    assert own["metrics"]["pc_fscore"] == pytest.approx(bp["metrics"]["pc_fscore"], abs=0.03)
+    assert own["metrics"]["mesh_pieces"] == bp["metrics"]["mesh_pieces"]
+    assert other["metrics"]["pc_points"] < own["metrics"]["pc_points"]
+    assert other["metrics"]["pc_surface_f1"] != own["metrics"]["pc_surface_f1"]
