@@ -11,6 +11,17 @@ const COLOURS = { backprojection: 0x4f9de0, reed: 0xe0a34f, shsas: 0x6fd08c, gro
 
 // viridis at 5 stops: scalars in [τ, 1] read as a familiar dark-to-bright scale
 const VIRIDIS = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]];
+
+/** The CSS colour a layer of ``key`` (a method, or "ground_truth") is drawn in: for legends. */
+export function layerColour(key) {
+  return `#${(COLOURS[key] ?? 0xcccccc).toString(16).padStart(6, "0")}`;
+}
+
+/** The point clouds' colour scale as a CSS gradient (low to high intensity). */
+export function viridisGradient() {
+  const stops = VIRIDIS.map((c, i) => `rgb(${c.map((v) => Math.round(v * 255)).join(",")}) ${(i / (VIRIDIS.length - 1)) * 100}%`);
+  return `linear-gradient(to right, ${stops.join(", ")})`;
+}
 function viridis(t) {
   const x = Math.min(Math.max(t, 0), 1) * (VIRIDIS.length - 1);
   const i = Math.min(Math.floor(x), VIRIDIS.length - 2);
