@@ -43,7 +43,8 @@ JOB_TIMEOUT_MS = 180_000
 MIN_TEXT_SHARE = 0.005
 DOCS_IMG = REPO / "docs" / "img"
 #: Bytes a first complete 3-D view of a three-method job may download (the issue's goal for
-#: the demo bunny; the test's job is smaller: grid 24, 20 iterations).
+#: the demo bunny; the test's job is smaller: the demo sphere of 10 x 90 pings at grid 24, 20
+#: iterations).
 FIRST_VIEW_BUDGET = 8_000_000
 #: Jobs on one page of the console's list (web/src/jobs.js, PAGE_SIZE).
 PAGE_SIZE = 20
@@ -172,6 +173,7 @@ def test_upload_progress_cancel_delete(ui, server) -> None:
     curve = f"li.job[data-job-id='{job_id}'] svg.loss"
     page.wait_for_function("s => Number(document.querySelector(s)?.dataset.samples) >= 3", arg=curve,
                            timeout=JOB_TIMEOUT_MS)
+    assert page.is_visible(curve)  # drawn, not only computed
     label = page.get_attribute(curve, "aria-label")
     assert label.startswith("loss from ") and len(page.get_attribute(f"{curve} polyline", "points").split()) >= 3
     loss = httpx.get(f"{server['base']}/reconstructions/{job_id}").json()["live_metrics"]["loss"]
@@ -254,10 +256,19 @@ def test_running_job_status_eta_and_log(ui, server) -> None:
                 aged = e2 + (t2 - t1)
                 worst = max(worst, e1 / aged, aged / e1)
     assert len(readings) >= 10 and worst <= MAX_ETA_SWING, (worst, readings)
+    assert page.is_visible("#live-loss")  # the loss curve of the values read
     # more lines came while the page watched (progress every 15 s, with the loss)
     page.wait_for_function("n => Number(document.querySelector('#log-lines').dataset.lines) > n",
                            arg=len(log.splitlines()), timeout=JOB_TIMEOUT_MS)
     shot(page, "console-job-status.png", server["tmp"])
+    # after a reload the loss curve starts from the log's history (a loss every 15 s)
+    logged = [ln for ln in page.inner_text("#log-lines").splitlines() if ", loss " in ln]
+    page.reload()
+    page.wait_for_selector("#result-live:not([hidden])")
+    page.wait_for_function("n => window.shsasConsole.result.log.losses.length >= n", arg=len(logged))
+    assert logged, "no progress line with the loss in the log"
+    first = float(logged[0].split(", loss ")[1].split(",")[0])
+    assert page.evaluate("window.shsasConsole.result.log.losses[0]") == pytest.approx(first, rel=1e-3)
     page.click(f"{row} button.cancel")
     page.wait_for_function("() => document.querySelector('#result-state').textContent.includes('cancelled')",
                            timeout=JOB_TIMEOUT_MS)
@@ -678,9 +689,10 @@ def test_presets_with_run_time_estimates(ui, server) -> None:
     page.wait_for_function("() => document.querySelector('#estimate').textContent.includes('would be refused')",
                            timeout=30_000)
     assert "SHSAS_MAX_CPU_JOB_S" in page.inner_text("#estimate")
+    top = page.locator("#submit").bounding_box()
+    shot(page, "console-presets.png", server["tmp"], clip={"x": top["x"], "y": top["y"], "width": top["width"], "height": 700})
     page.fill("#spec-iters", "")
     page.wait_for_function("() => document.querySelector('#estimate').textContent.includes('fill in every field')")
-    shot(page, "console-presets.png", server["tmp"], clip={"x": 0, "y": 0, "width": 640, "height": 800})
     assert uploads == []
 
 

@@ -10,6 +10,7 @@ export class LogView {
   constructor(box, pre, count) {
     Object.assign(this, { box, pre, count });
     this.id = null;
+    this.losses = []; // the loss values the log holds (every 15 s of training), oldest first
     this.active = false;
     this.timer = null;
     box.addEventListener("toggle", () => this.box.open && this.load());
@@ -22,6 +23,7 @@ export class LogView {
     this.active = active;
     this.box.hidden = false;
     if (!same) {
+      this.losses = [];
       this.box.open = active;
       this.pre.textContent = "";
       this.count.textContent = "";
@@ -52,6 +54,7 @@ export class LogView {
     const lines = log.lines.length ? log.lines : ["(no lines yet: a worker has not started this job)"];
     this.pre.textContent = (log.truncated ? `… earlier lines left out (the last ${log.lines.length} shown)\n` : "") + lines.join("\n");
     this.pre.dataset.lines = String(log.lines.length);
+    this.losses = log.lines.map((l) => Number(l.match(/, loss ([-+0-9.eE]+)/)?.[1])).filter((v) => Number.isFinite(v) && v > 0);
     this.count.textContent = `(${log.lines.length} line${log.lines.length === 1 ? "" : "s"})`;
     if (atEnd) this.pre.scrollTop = this.pre.scrollHeight;
     if (this.active && ["queued", "running"].includes(log.status)) this.timer = setTimeout(() => this.load(), POLL_MS);

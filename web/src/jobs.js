@@ -40,8 +40,9 @@ export function timeLeft(job) {
 
 /** ``values`` (positive) as a log-scale line in ``svg`` (its viewBox's size); hidden below two. */
 export function drawCurve(svg, values) {
-  svg.hidden = values.length < 2;
-  if (svg.hidden) return;
+  // an <svg> has no "hidden" property (HTMLElement's only): the attribute itself hides it
+  svg.toggleAttribute("hidden", values.length < 2);
+  if (values.length < 2) return;
   const [, , w, h] = svg.getAttribute("viewBox").split(" ").map(Number);
   const logs = values.map(Math.log10);
   const lo = Math.min(...logs);

@@ -110,7 +110,9 @@ export class ResultView {
       : [elapsed(job), Number.isInteger(job.queue_position) ? `${job.queue_position} ahead in the queue` : ""];
     $("live-text").textContent = parts.filter(Boolean).join(" · ");
     $("live-text").dataset.eta = Number.isFinite(job.eta_s) ? String(job.eta_s) : "";
-    drawCurve($("live-loss"), job.status === "running" ? losses : []);
+    // the values this page read, or, after a reload, the longer history the job's log keeps
+    const curve = losses.length >= this.log.losses.length ? losses : this.log.losses;
+    drawCurve($("live-loss"), job.status === "running" ? curve : []);
     $("live-warn").textContent = (job.warnings || []).map((w) => `⚠ ${methodName(w.method)}: ${w.message}`).join("\n");
   }
 
