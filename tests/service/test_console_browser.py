@@ -46,6 +46,8 @@ DOCS_IMG = REPO / "docs" / "img"
 #: the demo bunny; the test's job is smaller: the demo sphere of 10 x 90 pings at grid 24, 20
 #: iterations).
 FIRST_VIEW_BUDGET = 8_000_000
+#: Side (CSS px) of the axes drawn in the 3-D view's corner (web/src/viewer.js, GIZMO_PX).
+GIZMO_PX = 84
 #: Jobs on one page of the console's list (web/src/jobs.js, PAGE_SIZE).
 PAGE_SIZE = 20
 
@@ -437,6 +439,25 @@ def test_viewer_tools_reset_scale_measure(ui, server) -> None:
     per_px = page.evaluate("""() => { const v = window.__shsasViewer; const d = v.camera.position.distanceTo(v.controls.target);
         return 2 * d * Math.tan(v.camera.fov * Math.PI / 360) / v.canvas.clientHeight; }""")
     assert metres == pytest.approx(px * per_px, rel=1e-6)
+    # the survey frame's axes in the lower-right corner: red x, green y, blue z, turning with
+    # the view
+    def corner() -> np.ndarray:
+        from PIL import Image
+
+        img = np.asarray(Image.open(io.BytesIO(page.locator("#viewer").screenshot())).convert("RGB")).astype(int)
+        return img[-GIZMO_PX:, -GIZMO_PX:]
+
+    def axis_pixels(c: np.ndarray) -> dict[str, int]:
+        r, g, b = c[..., 0], c[..., 1], c[..., 2]  # by the dominant channel (lines are anti-aliased)
+        return {"x": int(((r > g + 60) & (r > b + 60)).sum()), "y": int(((g > r + 50) & (g > b + 30)).sum()),
+                "z": int(((b > r + 60) & (b > g + 30)).sum())}
+
+    before_turn = corner()
+    page.evaluate("() => { const v = window.__shsasViewer; v.gizmo.scene.visible = false; v.render(); }")
+    bare = axis_pixels(corner())
+    page.evaluate("() => { const v = window.__shsasViewer; v.gizmo.scene.visible = true; v.render(); }")
+    drawn = axis_pixels(before_turn)
+    assert all(drawn[a] - bare[a] > 20 for a in "xyz"), (drawn, bare)
     # turn the view, then "Reset view" brings back the first one
     box = page.locator("#viewer").bounding_box()
     cx, cy = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
@@ -445,6 +466,7 @@ def test_viewer_tools_reset_scale_measure(ui, server) -> None:
     page.mouse.move(cx + 150, cy + 40, steps=6)
     page.mouse.up()
     assert not np.allclose(page.evaluate(cam), home, atol=1e-4)
+    assert np.abs(corner() - before_turn).sum(axis=2).astype(bool).mean() > 0.02  # the axes turned too
     # keyboard zoom: "+" brings the camera closer to the orbit centre, "-" takes it back
     dist = "() => { const v = window.__shsasViewer; return v.camera.position.distanceTo(v.controls.target); }"
     d0 = page.evaluate(dist)
