@@ -7,7 +7,9 @@ whole job's average pace therefore drifts all through a stage. Here the pace is 
 stage's own, measured over the later three quarters of the time it has run (so a slow start
 fades out) and over at least ten steps (single steps vary a lot on a loaded machine), and the
 rest of the job is assumed to go at that pace. The wait for a stage's first step is left out
-of its pace. Until the stage has measured its pace there is no ETA (``None``: "estimating"),
+of its pace. What this does not know is how the later stages' paces differ: a slow short
+stage before a quick one (a warm start before a fit of a few iterations) overstates the time
+left until the next stage begins, and the figure can jump at each stage change. Until the stage has measured its pace there is no ETA (``None``: "estimating"),
 rather than a figure that will swing once the pace is known.
 """
 
