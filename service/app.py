@@ -28,7 +28,17 @@ from worker.reconciler import Reconciler
 from .deps import RETRY_AFTER_S, unavailable
 from .logs import AccessLogMiddleware
 from .redact import redact_paths
-from .routes import artifacts, bundle, console, extracts, health, reconstructions, surveys
+from .routes import (
+    artifacts,
+    bundle,
+    console,
+    extracts,
+    health,
+    joblog,
+    presets,
+    reconstructions,
+    surveys,
+)
 from .sweeper import Sweeper
 from .uploads import UploadError
 
@@ -116,6 +126,8 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
     app.include_router(reconstructions.router)
     app.include_router(artifacts.router)
     app.include_router(bundle.router)  # every artifact in one streamed zip
+    app.include_router(joblog.router)  # the job's own log lines
+    app.include_router(presets.router)  # presets and the cost estimate, before an upload
     app.include_router(health.router)
     # The console and the routes made for it (re-extraction, survey view), kept in their modules.
     app.include_router(extracts.router)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from datetime import UTC, datetime
 from typing import Any, Literal
 
@@ -11,7 +12,7 @@ from pydantic import BaseModel, Field
 from jobs.store import Job
 from shsas_core.evaluation.diagnostics import ResultWarning
 
-from .status import LiveStatus
+from .status import LiveStatus, running_eta
 
 Status = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
@@ -54,7 +55,8 @@ class JobOut(BaseModel):
     progress: float = Field(ge=0, le=1, description="overall fraction done")
     stage: str | None = Field(description="current pipeline stage, e.g. fit:shsas")
     iterations_per_s: float | None = Field(None, description="latest training speed reported by the pipeline")
-    live_metrics: dict[str, float] = Field(default_factory=dict, description="latest progress metrics")
+    live_metrics: dict[str, float] = Field(default_factory=dict, description="latest progress metrics "
+                                               "(loss, it/s, ...; eta_s as measured at eta_at, unix seconds)")
     attempts: int = Field(description="deliveries so far; > 1 after a worker was lost and the job resumed")
     cancel_requested: bool
     created_at: str | None
@@ -78,9 +80,9 @@ class JobOut(BaseModel):
         None, description="queued jobs (of any key) ahead of this one in its queue; 0 = next. "
         "Only in GET /reconstructions/{id}, null elsewhere and once the job left the queue")
     eta_s: float | None = Field(
-        None, description="rough seconds until the job finishes, from the measured run time of recent "
-        "jobs in its queue and, when running, its own progress rate; null until measured. Only in "
-        "GET /reconstructions/{id}")
+        None, description="rough seconds until the job finishes. Running: from the pace its current "
+        "stage measured (null until it has); queued (only in GET /reconstructions/{id}): from the "
+        "measured run time of recent jobs in its queue; null until measured")
     heartbeat_age_s: float | None = Field(
         None, description="running jobs: seconds since the worker last wrote its heartbeat. Only in "
         "GET /reconstructions/{id}")
@@ -105,7 +107,8 @@ class JobOut(BaseModel):
             device=job.device,
             artifacts=[ArtifactLink(name=a, url=f"{url}/artifacts/{a}") for a in job.artifacts],
             links={"self": url, "cancel": f"{url}/cancel", "artifacts": f"{url}/artifacts"},
-            **(dataclasses.asdict(live) if live is not None else {}),
+            **(dataclasses.asdict(live) if live is not None
+               else {"eta_s": running_eta(job, time.time())} if job.status == "running" else {}),
         )
 
 

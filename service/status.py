@@ -1,10 +1,10 @@
 """What a job's status adds for its owner: queue position, ETA and the worker's heartbeat age
 (so an owner can tell a queued job from a stuck one).
 
-The ETA is a rough figure from what the job table measured: the mean run time of the last
-jobs that ran to an end in the same queue (so it is ``null`` until one has), and, for a running
-job, the time it has run so far scaled by its progress. Every running job in the queue counts
-as one worker.
+A running job's ETA is what its worker measured from the current stage's pace
+(:mod:`worker.eta`; ``null`` while the stage has not measured it). A queued job's is a rough
+figure from the job table: the mean run time of the last jobs that ran to an end in the same
+queue (``null`` until one has), with every running job in the queue counting as one worker.
 """
 
 from __future__ import annotations
@@ -21,8 +21,6 @@ from jobs.store import Job, JobStore
 MISSED_BEATS = 3
 #: How long a queue's measured rate is reused: polls of queued jobs do not each scan the table.
 RATE_CACHE_S = 5.0
-#: Below this progress the fraction done says too little to extrapolate from.
-MIN_PROGRESS = 0.02
 
 _rates: dict[tuple[int, str], tuple[float, float | None, list[Job]]] = {}
 
@@ -36,11 +34,22 @@ class LiveStatus:
 
 
 def _remaining(job: Job, mean: float | None, now: float) -> float | None:
-    """Seconds a running job still needs: its run time so far scaled by its progress, else the mean."""
+    """Seconds a running job still needs: its worker's measure, else the queue's mean run time
+    less the time it has run."""
+    eta = running_eta(job, now)
+    if eta is not None:
+        return eta
     elapsed = max(0.0, now - (job.started_at or now))
-    if job.progress >= MIN_PROGRESS:
-        return elapsed * (1.0 - job.progress) / job.progress
     return None if mean is None else max(0.0, mean - elapsed)
+
+
+def running_eta(job: Job, now: float) -> float | None:
+    """Seconds left of a running job: what its worker last measured (``worker.eta``, from the
+    current stage's pace), aged by the time since; None while the stage has not measured it."""
+    lm = job.live_metrics
+    if "eta_s" not in lm or "eta_at" not in lm:
+        return None
+    return round(max(0.0, lm["eta_s"] - max(0.0, now - lm["eta_at"])), 1)
 
 
 def _rate(store: JobStore, queue: str, now: float) -> tuple[float | None, list[Job]]:
@@ -62,8 +71,7 @@ def live_status(store: JobStore, settings: Settings, job: Job) -> LiveStatus:
     if job.status == "running":
         age = max(0.0, now - job.heartbeat_at) if job.heartbeat_at is not None else None
         responding = age is not None and age <= MISSED_BEATS * settings.heartbeat_interval_s
-        mean, _ = _rate(store, job.queue, now) if job.progress < MIN_PROGRESS else (None, [])
-        eta = _remaining(job, mean, now)
+        eta = running_eta(job, now)
         return LiveStatus(heartbeat_age_s=None if age is None else round(age, 2), worker_responding=responding,
                           eta_s=None if eta is None else round(eta, 1))
     if job.status == "queued":

@@ -21,12 +21,14 @@ import uuid
 from collections.abc import Mapping
 from pathlib import Path
 
+from jobs.joblog import job_log
 from jobs.layout import job_paths, remove_job_files
 from jobs.periodic import Periodic
 from jobs.settings import Settings
 from jobs.store import Job, JobStore
 from shsas_core.common.atomic import is_partial, remove_partials
 
+from .eta import EtaEstimator
 from .previews import write_previews
 
 log = logging.getLogger("shsas.worker")
@@ -35,6 +37,8 @@ log = logging.getLogger("shsas.worker")
 CANCEL_POLL_S = 0.1
 #: How often progress is written at most (stage changes are always written).
 PROGRESS_WRITE_S = 0.5
+#: How often a stage's progress and live metrics are logged (the job's log shows them).
+PROGRESS_LOG_S = 15.0
 
 
 #: Set when this worker process is asked to stop (see :func:`request_shutdown`).
@@ -73,6 +77,8 @@ class JobControl:
         self._last_poll = 0.0
         self._last_write = 0.0
         self._stage: str | None = None
+        self._eta = EtaEstimator()
+        self._last_log = time.monotonic()
         self._lock = threading.Lock()
         # a heartbeat write can wait on a busy database: give the last one longer to end
         self._beats = Periodic(f"heartbeat-{job.id}", settings.heartbeat_interval_s, self._beat, log,
@@ -106,10 +112,18 @@ class JobControl:
 
     def progress(self, fraction: float, stage: str, metrics: Mapping[str, float]) -> None:
         now = time.monotonic()
+        eta = self._eta.update(now, fraction, stage)  # every report: the pace needs them all
         if stage == self._stage and now - self._last_write < PROGRESS_WRITE_S and fraction < 1.0:
             return
+        if stage != self._stage or now - self._last_log >= PROGRESS_LOG_S:
+            self._last_log = now
+            shown = "".join(f", {k} {v:.4g}" for k, v in metrics.items() if isinstance(v, int | float))
+            log.info("job %s: %s at %.1f %%%s", self.job_id, stage, 100 * fraction, shown,
+                     extra={"job_id": self.job_id, "stage": stage})
         self._stage, self._last_write = stage, now
         live = {k: float(v) for k, v in metrics.items() if isinstance(v, int | float)}
+        if eta is not None:  # seconds left as of eta_at (unix time): readers age it themselves
+            live.update(eta_s=round(eta, 1), eta_at=round(time.time(), 2))
         self._write(progress=fraction, stage=stage, live_metrics=live)
 
     def _write(self, **values) -> None:
@@ -156,6 +170,8 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
     in_dir, out_dir = job_paths(settings, job.id)
     out_dir.mkdir(parents=True, exist_ok=True)
     remove_partials(out_dir)
+    lines = job_log(out_dir.parent, job.id)  # the job's own log, beside its input and outputs
+    lines.__enter__()
     log.info("job %s attempt %d on %s", job.id, job.attempts, owner)
     ctl = JobControl(store, settings, job, owner).start()
     try:
@@ -212,6 +228,7 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
         raise
     finally:
         ctl.close()
+        lines.__exit__(None, None, None)
 
 
 def _fail(store: JobStore, job: Job, owner: str, reason: str) -> str:

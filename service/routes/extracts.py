@@ -1,6 +1,7 @@
 """Re-extraction at another iso level from a finished job's saved volume (no retraining).
 
-``GET /reconstructions/{id}/extract?method=&threshold=`` answers the point and face counts;
+``GET /reconstructions/{id}/extract?method=&threshold=`` answers the point and face counts and
+the scores at that level (``service.iso_scores``);
 ``.../extract/mesh.glb`` and ``.../extract/pointcloud.ply`` with the same query answer the files.
 The level is rounded to :data:`TAU_STEP`, and each (method, level) is extracted once and kept
 under the job's folder (``jobs/<id>/extracts/``), beside ``out/``, so deleting the job removes it.
@@ -34,6 +35,7 @@ from shsas_core.spec.job import Method
 
 from ..deps import SucceededJobDep
 from ..file_responses import file_response, safe_artifact_path
+from ..iso_scores import scores
 from ..models import ErrorOut
 from ..survey_view import VIEW_NAME
 
@@ -56,6 +58,9 @@ class Extraction(BaseModel):
     faces: int = Field(description="triangles of the mesh (the job's own mesher)")
     origin_offset: list[float] = Field(description="survey coordinates = GLB coordinates + this")
     seconds: float = Field(description="time the extraction took (0 when it was kept from before)")
+    metrics: dict[str, float | None] | None = Field(
+        None, description="the report's metrics at this level (pc_*, mesh_*) when the survey has ground "
+        "truth; else only mesh_pieces")
     mesh_url: str
     pointcloud_url: str
 
@@ -108,7 +113,8 @@ def _extract(job: Job, settings: Settings, method: str, tau: float) -> tuple[dic
         write_point_cloud_ply(cloud, folder / "pointcloud.ply")
         glb = write_mesh_glb(surface, folder / "mesh.glb")
         info = {"method": method, "threshold": tau, "points": len(cloud), "faces": len(surface.faces),
-                "origin_offset": glb["origin_offset"], "seconds": time.perf_counter() - t0}
+                "origin_offset": glb["origin_offset"], "seconds": time.perf_counter() - t0,
+                "metrics": scores(job.id, out_dir, cloud.points, surface)}
         write_json(info, info_path)  # last: its presence means the files are complete
     return info, folder, True
 

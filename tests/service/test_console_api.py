@@ -138,3 +138,87 @@ def test_levels_are_rounded_inside_the_open_interval() -> None:
 
     assert [_level(t) for t in (0.0001, 0.0004, 0.1004, 0.1006, 0.9996, 0.99999)] == \
         [0.001, 0.001, 0.1, 0.101, 0.999, 0.999]
+
+
+def test_job_log_lines(client, done, server) -> None:
+    """The job's own log: its stages in order, its outcome, bounded by ``tail``; a job of
+    another key or an unknown id is a 404."""
+    url = f"/reconstructions/{done['id']}/log"
+    r = client.get(url)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    text = "\n".join(body["lines"])
+    assert body["status"] == "succeeded" and not body["truncated"]
+    assert all(line[:8].count(":") == 2 for line in body["lines"])  # "HH:MM:SS level message"
+    for stage in ("deconvolution", "backprojection", "report"):
+        assert f" info {stage} at " in text, text
+    assert text.index("deconvolution at") < text.index("backprojection at") < text.index("report at")
+    assert "succeeded on cpu" in body["lines"][-1], body["lines"][-1]
+    assert done["id"] not in text  # the job's own id is not repeated on every line
+    two = client.get(url, params={"tail": 2}).json()
+    assert two["lines"] == body["lines"][-2:] and two["truncated"]
+    assert client.get(url, params={"tail": 0}).status_code == 422
+    assert client.get("/reconstructions/0123456789abcdef0123456789abcdef/log").status_code == 404
+
+
+def test_job_log_capped(tmp_path) -> None:
+    """A job that logs without end stops at the cap, with a line that says so."""
+    import logging
+
+    from jobs.joblog import MAX_BYTES, job_log, read_tail
+
+    log = logging.getLogger("shsas.worker")
+    with job_log(tmp_path, "abc") as path:
+        for i in range(MAX_BYTES // 40):
+            log.warning("job abc: line %d of a chatty job, padded to forty bytes", i)
+    assert MAX_BYTES - 200 < path.stat().st_size <= MAX_BYTES
+    lines, cut = read_tail(path, 5, 4096)
+    assert cut and "later lines are not kept" in lines[-1]
+    log.warning("job abc: after the job")  # the handler is gone once the job ended
+    assert path.stat().st_size <= MAX_BYTES
+
+
+def test_presets_and_estimates(client) -> None:
+    """The three presets, each a valid spec, with the cost model's estimate; a spec a submission
+    would refuse says why, before any upload."""
+    from shsas_core.spec.cost import cpu_job_seconds
+
+    presets = client.get("/schemas/reconstruction-presets").json()
+    assert [p["name"] for p in presets] == ["quick", "standard", "paper"]
+    est = {}
+    for p in presets:
+        spec = {**p["spec"], "device": "cpu"}
+        r = client.post("/estimates", json={"spec": spec})
+        assert r.status_code == 200, r.text
+        est[p["name"]] = r.json()
+        want = cpu_job_seconds(ReconstructionSpec.model_validate(spec)).total_s
+        assert est[p["name"]]["cpu_s"] == pytest.approx(want, abs=0.1) and not est[p["name"]]["survey_known"]
+    assert est["quick"]["parts"]["train_s"] == 0 < est["standard"]["parts"]["train_s"] < est["paper"]["parts"]["train_s"]
+    assert est["quick"]["refused"] == [] and est["standard"]["refused"] == []
+    # the paper's setting on a CPU: hours, over the CPU limit (and over the training cap)
+    assert est["paper"]["cpu_s"] > 3600 and any("SHSAS_MAX_CPU_JOB_S" in m for m in est["paper"]["refused"])
+    # the survey's size adds its parts when given
+    sized = client.post("/estimates", json={"spec": {"methods": ["backprojection"], "grid": 64, "device": "cpu"},
+                                            "pings": 1000, "samples_per_ping": 2000}).json()
+    assert sized["survey_known"] and sized["parts"]["backprojection_s"] > 0 and sized["parts"]["signal_s"] > 0
+    bad = client.post("/estimates", json={"spec": {"grid": 2, "iters": -1}})
+    assert bad.status_code == 422 and "spec.grid" in bad.json()["detail"] and "spec.iters" in bad.json()["detail"]
+
+
+def test_reextract_scores_follow_the_level(client, done) -> None:
+    """With ground truth, a re-extraction carries the report's metrics at its level: at the
+    job's own level they agree with the report's; at another level they change."""
+    report = client.get(f"/reconstructions/{done['id']}/artifacts/report.json").json()
+    bp = next(m for m in report["methods"] if m["method"] == "backprojection")
+    assert bp["metrics"].get("pc_surface_f1") is not None  # the demo survey has ground truth
+    url = f"/reconstructions/{done['id']}/extract"
+    own = client.get(url, params={"method": "backprojection", "threshold": round(bp["threshold"], 3)}).json()
+    other = client.get(url, params={"method": "backprojection", "threshold": 0.8}).json()
+    for key in ("pc_surface_f1", "pc_fscore", "pc_chamfer_l2", "mesh_surface_f1", "mesh_pieces"):
+        assert own["metrics"][key] is not None, key
+    # the level is rounded to 0.001 and the ground truth goes through a float32 GLB: close, not equal
+    assert own["metrics"]["pc_surface_f1"] == pytest.approx(bp["metrics"]["pc_surface_f1"], abs=0.03)
+    assert own["metrics"]["pc_fscore"] == pytest.approx(bp["metrics"]["pc_fscore"], abs=0.03)
+    assert own["metrics"]["mesh_pieces"] == bp["metrics"]["mesh_pieces"]
+    assert other["metrics"]["pc_points"] < own["metrics"]["pc_points"]
+    assert other["metrics"]["pc_surface_f1"] != own["metrics"]["pc_surface_f1"]

@@ -47,6 +47,7 @@ export class SpecForm {
     const hintText = [short, limits(p, nullable)].filter(Boolean).join(" — ");
     const hint = el("span", { class: "hint", id: `hint-${name}`, title: desc || undefined }, hintText);
     let read;
+    let write;
     let check = () => null;
     if (p.type === "array" && p.items && p.items.enum) {
       const group = el("div", { class: "checks", role: "group", "aria-labelledby": `lbl-${name}`, "aria-describedby": hint.id });
@@ -58,17 +59,20 @@ export class SpecForm {
       });
       box.append(el("span", { class: "label", id: `lbl-${name}` }, name), group);
       read = () => boxes.filter((b) => b.checked).map((b) => b.value);
+      write = (v) => boxes.forEach((b) => (b.checked = (v || []).includes(b.value)));
     } else if (p.enum) {
       const sel = el("select", { id, name, "aria-describedby": `${hint.id} ${err.id}` },
         ...p.enum.map((v) => el("option", { value: v }, String(v))));
       sel.value = p.default;
       box.append(el("label", { for: id }, name), sel);
       read = () => sel.value;
+      write = (v) => (sel.value = v);
     } else if (p.type === "boolean") {
       const cb = el("input", { type: "checkbox", id, name, "aria-describedby": `${hint.id} ${err.id}` });
       cb.checked = !!p.default;
       box.append(el("label", { for: id }, name), cb);
       read = () => cb.checked;
+      write = (v) => (cb.checked = !!v);
     } else {
       const numeric = p.type === "integer" || p.type === "number";
       const input = el("input", {
@@ -83,6 +87,7 @@ export class SpecForm {
         check = () => (input.value.trim() === "" ? `${name}: ${input.validity.badInput ? "not a number" : "empty"} ` +
           `(fix: give a value${p.default !== undefined ? `; the default is ${p.default}` : ""})` : null);
       }
+      write = (v) => (input.value = v ?? "");
       read = () => {
         const v = input.value.trim();
         if (v === "") return nullable ? null : undefined;
@@ -93,7 +98,7 @@ export class SpecForm {
     }
     box.append(err, hint); // the error right under the control, where the focus lands
     this.container.append(box);
-    this.fields[name] = { read, check, default: p.default ?? null, box, err };
+    this.fields[name] = { read, write, check, default: p.default ?? null, box, err };
   }
 
   /** The problems found before sending (each also shown beside its field): [{name, text}]. */
@@ -107,6 +112,17 @@ export class SpecForm {
       out.push({ name, text });
     }
     return out;
+  }
+
+  /** The problems found before sending, without showing them: [{name, text}]. */
+  problems() {
+    return Object.entries(this.fields).map(([name, f]) => ({ name, text: f.check() })).filter((p) => p.text);
+  }
+
+  /** Every field back to its default, then ``values`` (a preset's fields) over them. */
+  reset(values = {}) {
+    this.clearErrors();
+    for (const [name, f] of Object.entries(this.fields)) f.write(name in values ? values[name] : f.default);
   }
 
   /** The spec to send: only the fields that differ from their defaults. */

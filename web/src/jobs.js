@@ -31,9 +31,33 @@ export function elapsed(job, now = Date.now()) {
   return "";
 }
 
+/** "about 3 min left" from the status's ETA (the pace the current stage measured), or
+ *  "estimating time left" while the stage has not measured it. Running jobs only. */
+export function timeLeft(job) {
+  if (job.status !== "running") return "";
+  return Number.isFinite(job.eta_s) ? `about ${fmtDuration(job.eta_s)} left` : "estimating time left";
+}
+
+/** ``values`` (positive) as a log-scale line in ``svg`` (its viewBox's size); hidden below two. */
+export function drawCurve(svg, values) {
+  // an <svg> has no "hidden" property (HTMLElement's only): the attribute itself hides it
+  svg.toggleAttribute("hidden", values.length < 2);
+  if (values.length < 2) return;
+  const [, , w, h] = svg.getAttribute("viewBox").split(" ").map(Number);
+  const logs = values.map(Math.log10);
+  const lo = Math.min(...logs);
+  const span = Math.max(...logs) - lo || 1;
+  const pts = logs.map((v, i) => `${((i / (logs.length - 1)) * w).toFixed(1)},${(h - 2 - ((v - lo) / span) * (h - 4)).toFixed(1)}`);
+  svg.querySelector("polyline").setAttribute("points", pts.join(" "));
+  svg.dataset.samples = String(values.length);
+  svg.setAttribute("aria-label", `loss from ${values[0].toPrecision(3)} to ${values[values.length - 1].toPrecision(3)} over ${values.length} readings`);
+}
+
 export class JobList {
-  constructor({ list, empty, status, search, newer, older, pageLabel, dialog, onOpen, onError }) {
-    Object.assign(this, { list, empty, status, search, newer, older, pageLabel, dialog, onOpen, onError });
+  constructor({ list, empty, status, search, newer, older, pageLabel, dialog, compareLink, onOpen, onError }) {
+    Object.assign(this, { list, empty, status, search, newer, older, pageLabel, dialog, compareLink, onOpen, onError });
+    this.picked = []; // ids ticked for the two-job view (kept across pages)
+    compareLink.addEventListener("click", () => this.onOpen(compareLink.getAttribute("href")));
     this.rows = new Map();
     this.losses = new Map(); // job id -> the loss values seen while this page polled it
     this.selected = null;
@@ -147,23 +171,29 @@ export class JobList {
       <div class="warn"></div>
       <div class="actions">
         <a class="open button" role="button">View result</a>
+        <a class="details button" role="button">Details and log</a>
         <a class="compare button" role="button">Compare methods</a>
         <button type="button" class="cancel">Cancel</button>
         <button type="button" class="delete">Delete…</button>
+        <label class="pick"><input type="checkbox" class="pick-box"> compare</label>
       </div>`;
     const q = (s) => li.querySelector(s);
     const row = { li, badge: q(".badge"), title: q(".title"), file: q(".file"), id: q(".id"), stage: q(".stage"),
       bar: q("progress"), pct: q(".pct"), meta: q(".meta"), error: q(".error"), warn: q(".warn"),
-      open: q(".open"), compare: q(".compare"), cancel: q(".cancel"), del: q(".delete"), curve: q("svg.loss") };
+      open: q(".open"), details: q(".details"), compare: q(".compare"), cancel: q(".cancel"), del: q(".delete"), pick: q(".pick"), pickBox: q(".pick-box"), curve: q("svg.loss") };
     row.id.textContent = id.slice(0, 8);
     row.id.title = id;
     // links, not handlers: each result has its own address (#/jobs/{id}); back and forward work
     row.open.href = `#/jobs/${id}`;
+    row.details.href = `#/jobs/${id}`;
     row.compare.href = `#/jobs/${id}/compare`;
     row.open.addEventListener("click", () => this.onOpen(row.open.getAttribute("href")));
+    row.details.addEventListener("click", () => this.onOpen(row.details.getAttribute("href")));
     row.compare.addEventListener("click", () => this.onOpen(row.compare.getAttribute("href")));
     row.cancel.addEventListener("click", () => this.act(id, "cancel"));
     row.del.addEventListener("click", () => this.confirmDelete(id));
+    row.pickBox.setAttribute("aria-label", `compare job ${id.slice(0, 8)} with another`);
+    row.pickBox.addEventListener("change", () => this.pick(id, row.pickBox.checked));
     return row;
   }
 
@@ -171,6 +201,8 @@ export class JobList {
     row.job = job;
     row.li.dataset.status = job.status;
     row.li.dataset.progress = String(job.progress);
+    row.li.dataset.eta = Number.isFinite(job.eta_s) ? String(job.eta_s) : "";
+    row.li.dataset.stage = job.stage || "";
     row.badge.className = `badge ${job.status}`;
     row.badge.textContent = job.status + (job.cancel_requested && ACTIVE.has(job.status) ? " (cancelling)" : "");
     row.title.textContent = jobTitle(job);
@@ -180,7 +212,7 @@ export class JobList {
     row.bar.hidden = row.pct.hidden = job.status !== "running";
     row.bar.value = job.progress;
     row.pct.textContent = `${Math.round(job.progress * 100)} %`;
-    const meta = [elapsed(job)];
+    const meta = [elapsed(job), timeLeft(job)];
     const loss = job.live_metrics?.loss;
     if (job.status === "running" && Number.isFinite(loss)) meta.push(`loss ${loss.toPrecision(3)}`);
     if (job.status === "running" && job.iterations_per_s) meta.push(`${job.iterations_per_s.toFixed(1)} it/s`);
@@ -192,9 +224,12 @@ export class JobList {
     row.error.textContent = job.error ? `Error: ${job.error}` : "";
     row.warn.textContent = (job.warnings || []).map((w) => `⚠ ${w.method}: ${w.message}`).join("\n");
     row.open.hidden = job.status !== "succeeded";
+    row.details.hidden = job.status === "succeeded"; // the result's page has its log too
     row.compare.hidden = job.status !== "succeeded" || (job.spec.methods || []).length < 2;
     row.cancel.hidden = !ACTIVE.has(job.status) || job.cancel_requested;
     row.del.hidden = ACTIVE.has(job.status);
+    row.pick.hidden = job.status !== "succeeded";
+    row.pickBox.checked = this.picked.includes(job.id);
     row.li.classList.toggle("selected", this.selected === job.id);
   }
 
@@ -207,15 +242,17 @@ export class JobList {
       if (seen.length > 300) seen.splice(0, seen.length - 300);
       this.losses.set(job.id, seen);
     }
-    row.curve.hidden = job.status !== "running" || seen.length < 2;
-    if (row.curve.hidden) return;
-    const logs = seen.map(Math.log10);
-    const lo = Math.min(...logs);
-    const span = Math.max(...logs) - lo || 1;
-    const pts = logs.map((v, i) => `${((i / (logs.length - 1)) * 200).toFixed(1)},${(28 - ((v - lo) / span) * 26).toFixed(1)}`);
-    row.curve.querySelector("polyline").setAttribute("points", pts.join(" "));
-    row.curve.dataset.samples = String(seen.length);
-    row.curve.setAttribute("aria-label", `loss from ${seen[0].toPrecision(3)} to ${seen[seen.length - 1].toPrecision(3)} over ${seen.length} readings`);
+    drawCurve(row.curve, job.status === "running" ? seen : []);
+  }
+
+  /** Tick or untick a job for the two-job view; a third tick drops the oldest. */
+  pick(id, on) {
+    this.picked = this.picked.filter((p) => p !== id);
+    if (on) this.picked.push(id);
+    if (this.picked.length > 2) this.picked.shift();
+    for (const [rid, row] of this.rows) row.pickBox.checked = this.picked.includes(rid);
+    this.compareLink.hidden = this.picked.length !== 2;
+    if (this.picked.length === 2) this.compareLink.href = `#/compare/${this.picked[0]}/${this.picked[1]}`;
   }
 
   select(id) {

@@ -1,10 +1,12 @@
 // The shsas operator console: key, upload, jobs, result. Only the public REST API is used.
 // Each result has its own address, #/jobs/{id} (#/jobs/{id}/compare: its methods side by
+// side; #/compare/{a}/{b}: two jobs side by
 // side), so reload, back and forward work.
 
 import { api, ApiError, key, upload } from "./api.js";
 import { SpecForm } from "./form.js";
 import { JobList } from "./jobs.js";
+import { Presets } from "./presets.js";
 import { ResultView } from "./result.js";
 import { sniffSurvey } from "./sniff.js";
 import { ViewerTools } from "./tools.js";
@@ -46,6 +48,7 @@ const jobs = new JobList({
   older: $("jobs-older"),
   pageLabel: $("jobs-page"),
   dialog: $("confirm-delete"),
+  compareLink: $("compare-jobs"),
   onOpen: (href) => {
     // a click on "View result": bring the result into view once routed (at once when it is
     // the address already, which fires no hashchange)
@@ -55,20 +58,26 @@ const jobs = new JobList({
   onError: (e, keep) => banner(e, keep),
 });
 const viewer = new Viewer($("viewer"));
-const tools = new ViewerTools(viewer, { scalebar: $("scalebar"), measureBtn: $("measure"), resetBtn: $("reset-view"), out: $("measure-out") });
 const result = new ResultView(viewer, (e, keep) => banner(e, keep));
+const tools = new ViewerTools(viewer, {
+  scalebar: $("scalebar"), measureBtn: $("measure"), resetBtn: $("reset-view"), out: $("measure-out"), shotBtn: $("screenshot"),
+  // named after the uploaded survey, as the other downloads are
+  shotName: () => (result.job?.input?.filename || "").replace(/^.*[\\/]/, "").replace(/\.[^.]*$/, "").trim() || result.job?.id.slice(0, 8) || "shsas",
+});
 let wantFocus = false;
 
 // --- routing: #/jobs/{id}[/compare] -------------------------------------------------------
 
 function parseRoute() {
+  const pair = location.hash.match(/^#\/compare\/([0-9a-f]{32})\/([0-9a-f]{32})$/);
+  if (pair) return { pair: [pair[1], pair[2]] };
   const m = location.hash.match(/^#\/jobs\/([0-9a-f]{32})(\/compare)?$/);
   return m ? { id: m[1], compare: !!m[2] } : null;
 }
 
 async function route() {
   const r = parseRoute();
-  jobs.select(r ? r.id : null);
+  jobs.select(r?.id ?? null);
   if (!r) {
     result.close();
     return;
@@ -76,15 +85,19 @@ async function route() {
   const focus = wantFocus;
   wantFocus = false;
   try {
-    await result.show(r.id, { compare: r.compare, focus });
+    if (r.pair) await result.showPair(r.pair, { focus });
+    else await result.show(r.id, { compare: r.compare, focus });
   } catch (e) {
     banner(e, true);
   }
 }
 
 jobs.onJob = (job) => {
-  // a routed job that was still running when opened: show its result once it succeeded
-  if (result.waitingFor === job.id && job.status === "succeeded") route();
+  if (result.waitingFor !== job.id) return;
+  // a routed job that was still running when opened: its live status, then its result (or
+  // its end) once it finished
+  if (["queued", "running"].includes(job.status)) result.live(job, jobs.losses.get(job.id) || []);
+  else route();
 };
 
 // --- upload -------------------------------------------------------------------------------
@@ -219,6 +232,7 @@ async function start() {
     banner(e, true);
     return;
   }
+  new Presets(form, $("presets"), $("estimate")).load().catch((e) => ($("estimate").textContent = `Presets unavailable: ${e.message}`));
   jobs.start();
   route();
 }

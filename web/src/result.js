@@ -3,9 +3,10 @@
 // from report.html, the survey plot, and every artifact.
 
 import { api } from "./api.js";
-import { jobTitle } from "./jobs.js";
-import { methodName } from "./stages.js";
-import { Viewer } from "./viewer.js";
+import { drawCurve, elapsed, jobTitle, timeLeft } from "./jobs.js";
+import { LogView } from "./joblog.js";
+import { methodName, plainStage } from "./stages.js";
+import { layerColour, Viewer, viridisGradient } from "./viewer.js";
 import { plotPings, plotSurvey } from "./survey.js";
 
 // the primary surface F1 first (shsas_core/evaluation/metrics.py), then the mesh's quality
@@ -35,6 +36,7 @@ export class ResultView {
     this.onError = onError;
     this.job = null;
     this.isoTimer = null;
+    this.log = new LogView($("log-box"), $("log-lines"), $("log-count"));
     $("iso").addEventListener("input", () => {
       $("iso-value").textContent = Number($("iso").value).toFixed(2);
       clearTimeout(this.isoTimer);
@@ -55,17 +57,26 @@ export class ResultView {
     const job = await api(`/reconstructions/${id}`);
     if (gen !== this.gen) return;
     $("result-h").textContent = `Result of ${jobTitle(job)}`;
+    const active = ["queued", "running"].includes(job.status);
+    this.log.show(job.id, active);
     if (job.status !== "succeeded") {
       // reachable by its address at any time; the result appears here once it succeeded
       $("result-body").hidden = true;
       this.job = null;
-      $("result-state").textContent = ["queued", "running"].includes(job.status)
+      $("result-state").textContent = active
         ? `This job is ${job.status}; its result appears here when it has finished.`
         : `This job ${job.status === "failed" ? "failed" : "was cancelled"}; it has no result.${job.error ? ` ${job.error}` : ""}`;
-      if (["queued", "running"].includes(job.status)) this.waitingFor = job.id;
+      if (active) {
+        this.waitingFor = job.id;
+        this.live(job);
+      } else $("result-live").hidden = true;
       return;
     }
     $("result-state").textContent = "";
+    $("result-live").hidden = true;
+    this.pair = null;
+    $("job-extras").hidden = false;
+    $("one-job-tools").hidden = false;
     this.setMode(job, compare);
     if (!(this.job?.id === job.id && this.loaded)) await this.open(job, gen);
     if (gen !== this.gen) return;
@@ -84,6 +95,27 @@ export class ResultView {
     $("compare").hidden = !compare;
   }
 
+  /** The open job's live status while it is queued or running: stage, progress, elapsed time,
+   *  time left, the loss curve (``losses``: the values the list has seen) and its warnings. */
+  live(job, losses = []) {
+    if (this.waitingFor !== job.id) return;
+    $("result-live").hidden = false;
+    const bar = $("live-progress");
+    bar.value = job.progress;
+    bar.hidden = job.status !== "running";
+    const loss = job.live_metrics?.loss;
+    const parts = job.status === "running"
+      ? [plainStage(job.stage), `${Math.round(job.progress * 100)} %`, elapsed(job), timeLeft(job),
+        Number.isFinite(loss) ? `loss ${loss.toPrecision(3)}` : ""]
+      : [elapsed(job), Number.isInteger(job.queue_position) ? `${job.queue_position} ahead in the queue` : ""];
+    $("live-text").textContent = parts.filter(Boolean).join(" · ");
+    $("live-text").dataset.eta = Number.isFinite(job.eta_s) ? String(job.eta_s) : "";
+    // the values this page read, or, after a reload, the longer history the job's log keeps
+    const curve = losses.length >= this.log.losses.length ? losses : this.log.losses;
+    drawCurve($("live-loss"), job.status === "running" ? curve : []);
+    $("live-warn").textContent = (job.warnings || []).map((w) => `⚠ ${methodName(w.method)}: ${w.message}`).join("\n");
+  }
+
   bringIntoView() {
     // the heading, not the 3-D view, takes the focus: a screen reader starts at the title
     $("result").scrollIntoView({ block: "start" });
@@ -97,6 +129,8 @@ export class ResultView {
     this.waitingFor = null;
     this.viewer.clear();
     this.closeCompare();
+    this.log.close();
+    $("result-live").hidden = true;
     $("result-body").hidden = true;
     $("result-hint").hidden = false;
     $("result-state").textContent = "";
@@ -125,6 +159,7 @@ export class ResultView {
     if (gen !== this.gen) return;
     this.report = report;
     this.renderMetrics(report);
+    $("metrics-note").textContent = "";
     this.renderArtifacts(job);
     this.renderWarnings(job);
     this.renderMip(base);
@@ -138,11 +173,11 @@ export class ResultView {
 
   /** The file to draw for ``kind`` ("mesh" | "points") of method entry ``m``: the light preview
    *  the worker wrote, when the job has one and full resolution was not asked for. */
-  file(m, kind) {
+  file(m, kind, job = this.job) {
     const full = kind === "mesh" ? m.artifacts.mesh_glb : m.artifacts.pointcloud;
     const preview = kind === "mesh" ? `${m.method}_mesh_preview.glb` : `${m.method}_pointcloud_preview.ply`;
-    const has = this.job.artifacts.some((a) => a.name === preview);
-    return `/reconstructions/${this.job.id}/artifacts/${!this.full && has ? preview : full}`;
+    const has = job.artifacts.some((a) => a.name === preview);
+    return `/reconstructions/${job.id}/artifacts/${!this.full && has ? preview : full}`;
   }
 
   /** Fetch once per job (the panes of the compare view share the files), counting progress. */
@@ -182,13 +217,13 @@ export class ResultView {
       const mesh = await meshes[i];
       if (gen !== this.gen) return;
       await this.viewer.addMesh(`${m.method} mesh`, mesh, m.origin_offset, m.method);
-      this.addToggle(`${m.method} mesh`, true);
+      this.addToggle(`${m.method} mesh`, true, null, m.method);
       this.addToggle(`${m.method} points`, false, () => this.fetchBuffer(this.file(m, "points"))
         .then((b) => gen === this.gen && this.viewer.addPoints(`${m.method} points`, b)));
     }
     if (truth) {
       await this.viewer.addMesh("ground truth", await truth, survey.ground_truth_origin_offset, "ground_truth");
-      this.addToggle("ground truth", true);
+      this.addToggle("ground truth", true, null, "ground_truth");
     }
     if (gen !== this.gen) return;
     this.viewer.frame();
@@ -210,29 +245,42 @@ export class ResultView {
 
   /** The methods side by side, one pane each (at most four), with one camera for all. */
   async compare(gen) {
+    const panes = this.report.methods.slice(0, 4).map((m) => ({
+      caption: methodLabel(m), name: m.method,
+      layers: [{ name: `${m.method} mesh`, url: this.file(m, "mesh"), offset: m.origin_offset, colour: m.method }],
+      survey: this.survey,
+    }));
+    await this.drawPanes(panes, gen, this.job.id);
+  }
+
+  /** ``specs`` side by side ([{caption, name, layers: [{name, url, offset, colour}], survey}]),
+   *  the survey's ground truth in each, one camera for all; ``ready`` marks the body when drawn. */
+  async drawPanes(specs, gen, ready) {
     this.closeCompare();
-    const methods = this.report.methods.slice(0, 4);
     const box = $("compare-panes");
-    box.dataset.panes = String(methods.length);
-    const origin = methods[0]?.origin_offset;
-    const panes = methods.map((m) => {
+    box.dataset.panes = String(specs.length);
+    const origin = specs[0]?.layers[0]?.offset;
+    const panes = specs.map((p) => {
       const fig = document.createElement("figure");
       const canvas = Object.assign(document.createElement("canvas"), { tabIndex: 0 });
-      canvas.setAttribute("aria-label", `3-D view of ${m.method}: drag or arrow keys to orbit, wheel to zoom; all panes move together`);
-      fig.append(canvas, Object.assign(document.createElement("figcaption"), { textContent: methodLabel(m) }));
+      canvas.setAttribute("aria-label", `3-D view of ${p.name}: drag or arrow keys to orbit, wheel to zoom; all panes move together`);
+      fig.append(canvas, Object.assign(document.createElement("figcaption"), { textContent: p.caption }));
       box.append(fig);
       const v = new Viewer(canvas, { main: false });
       v.setOrigin(origin); // one frame for all panes, so one camera shows each the same way
       return v;
     });
     this.panes = panes;
-    for (const [i, m] of methods.entries()) {
-      const mesh = await this.fetchBuffer(this.file(m, "mesh"));
-      if (gen !== this.gen || this.panes !== panes) return;
-      await panes[i].addMesh(`${m.method} mesh`, mesh, m.origin_offset, m.method);
-      if (this.survey?.ground_truth_url) {
-        const gt = await this.fetchBuffer(this.survey.ground_truth_url);
-        await panes[i].addMesh("ground truth", gt, this.survey.ground_truth_origin_offset, "ground_truth");
+    for (const [i, p] of specs.entries()) {
+      for (const layer of p.layers) {
+        const mesh = await this.fetchBuffer(layer.url);
+        if (gen !== this.gen || this.panes !== panes) return;
+        await panes[i].addMesh(layer.name, mesh, layer.offset, layer.colour);
+      }
+      if (p.survey?.ground_truth_url) {
+        const gt = await this.fetchBuffer(p.survey.ground_truth_url);
+        if (gen !== this.gen || this.panes !== panes) return;
+        await panes[i].addMesh("ground truth", gt, p.survey.ground_truth_origin_offset, "ground_truth");
       }
     }
     if (gen !== this.gen || this.panes !== panes) return;
@@ -243,7 +291,58 @@ export class ResultView {
       v.frameBox(all);
     }
     Viewer.link(panes);
-    document.body.dataset.compareReady = this.job.id; // for tests: every pane is drawn
+    document.body.dataset.compareReady = ready; // for tests: every pane is drawn
+  }
+
+  /** Two jobs side by side (#/compare/{a}/{b}): one pane each with all its methods, one camera,
+   *  and one metrics table with the rows of both. */
+  async showPair(ids, { focus = false } = {}) {
+    this.gen = (this.gen || 0) + 1;
+    const gen = this.gen;
+    this.waitingFor = null;
+    this.log.close();
+    $("result-hint").hidden = true;
+    $("result-live").hidden = true;
+    $("result-state").textContent = "";
+    $("result-h").textContent = "Two jobs side by side";
+    if (focus) this.bringIntoView();
+    const jobs = await Promise.all(ids.map((id) => api(`/reconstructions/${id}`)));
+    if (gen !== this.gen) return;
+    $("result-h").textContent = `${jobTitle(jobs[0])} beside ${jobTitle(jobs[1])}`;
+    const unfinished = jobs.filter((j) => j.status !== "succeeded");
+    if (unfinished.length) {
+      $("result-body").hidden = true;
+      $("result-state").textContent = unfinished.map((j) => `${jobTitle(j)} is ${j.status}: it has no result to compare.`).join(" ");
+      return;
+    }
+    const [reports, surveys] = await Promise.all([
+      Promise.all(jobs.map((j) => api(`/reconstructions/${j.id}/artifacts/report.json`))),
+      Promise.all(jobs.map((j) => api(`/reconstructions/${j.id}/survey`).catch(() => null))),
+    ]);
+    if (gen !== this.gen) return;
+    this.job = null; // a single job opened next loads afresh
+    this.loaded = false;
+    this.full = false;
+    this.buffers = new Map();
+    this.loading = { done: 0, total: 0, bytes: 0 };
+    this.pair = jobs;
+    this.viewer.clear();
+    $("result-body").hidden = false;
+    $("single-view").hidden = true;
+    $("compare").hidden = false;
+    $("job-extras").hidden = true; // MIPs, survey and files belong to one job: each has its page
+    $("one-job-tools").hidden = true;
+    $("full-res").hidden = true;
+    $("metrics-note").textContent = "";
+    jobs.forEach((j, i) => this.renderMetrics(reports[i], j, i > 0));
+    const warnings = jobs.flatMap((j) => (j.warnings || []).map((w) => ({ ...w, method: `${jobTitle(j)}: ${methodName(w.method)}` })));
+    this.renderWarnings({ warnings });
+    const panes = jobs.map((j, i) => ({
+      caption: `${jobTitle(j)} — ${reports[i].methods.map((m) => methodName(m.method)).join(", ")}`, name: jobTitle(j),
+      layers: reports[i].methods.map((m) => ({ name: `${m.method} mesh`, url: this.file(m, "mesh", j), offset: m.origin_offset, colour: m.method })),
+      survey: surveys[i],
+    }));
+    await this.drawPanes(panes, gen, jobs.map((j) => j.id).join(","));
   }
 
   closeCompare() {
@@ -254,18 +353,34 @@ export class ResultView {
   }
 
   /** A layer's checkbox; ``load`` fetches a layer that is not in the scene yet when first ticked. */
-  addToggle(name, on, load = null) {
+  addToggle(name, on, load = null, colourKey = null) {
     const id = `layer-${name.replace(/\W+/g, "-")}`;
     const cb = Object.assign(document.createElement("input"), { type: "checkbox", id, checked: on });
     cb.addEventListener("change", async () => {
       if (cb.checked && load && !this.viewer.layers.has(name)) await load();
       this.viewer.show(name, cb.checked);
+      this.syncLegend();
     });
     this.viewer.show(name, on);
     const label = document.createElement("label");
     label.htmlFor = id;
-    label.append(cb, ` ${name}`);
+    // the layer's colour beside its name: the toggles are the legend of the meshes
+    const swatch = Object.assign(document.createElement("span"), { className: "swatch" });
+    swatch.setAttribute("aria-hidden", "true");
+    if (colourKey) swatch.style.background = layerColour(colourKey);
+    else swatch.style.background = viridisGradient(); // a cloud: coloured by its intensity
+    if (colourKey === "ground_truth") swatch.style.opacity = "0.5";
+    swatch.dataset.colour = colourKey ? layerColour(colourKey) : "intensity";
+    label.append(cb, swatch, ` ${name}`);
     $("layers").append(label);
+    this.syncLegend();
+  }
+
+  /** The intensity scale shows while a point cloud is drawn: its colours run from τ to 1. */
+  syncLegend() {
+    const clouds = [...$("layers").querySelectorAll("input:checked")].some((cb) => cb.id.endsWith("-points"));
+    $("cloud-legend").hidden = !clouds;
+    $("cloud-legend-bar").style.background = viridisGradient();
   }
 
   syncSlider() {
@@ -292,6 +407,7 @@ export class ResultView {
       await this.viewer.addMesh(`${method} mesh`, mesh, info.origin_offset, method);
       this.viewer.addPoints(`${method} points`, pts);
       this.viewer.show(`${method} points`, !!$(`layer-${method}-points`)?.checked); // as its box says
+      this.updateMetrics(info);
       const line = this.status(info);
       $("iso-status").textContent = line;
       $("iso-status").dataset.points = String(info.points);
@@ -302,15 +418,37 @@ export class ResultView {
     }
   }
 
-  renderMetrics(report) {
+  /** One row per method of ``report`` (of ``job``, named in the row when two jobs are shown). */
+  renderMetrics(report, job = null, append = false) {
     const table = $("metrics");
     const head = `<thead><tr><th scope="col">method</th>${METRIC_COLUMNS.map((c) => `<th scope="col">${c}</th>`).join("")}</tr></thead>`;
     const rows = report.methods.map((m) => {
       const all = { ...m.metrics, threshold: m.threshold, points: m.points, faces: m.faces, seconds: m.seconds };
       const cells = METRIC_COLUMNS.map((c) => `<td data-metric="${c}" data-value="${all[c] ?? ""}">${fmt(all[c])}</td>`).join("");
-      return `<tr data-method="${m.method}"><th scope="row">${m.method}</th>${cells}</tr>`;
+      const name = job ? `${escape(jobTitle(job))}: ${m.method}` : m.method;
+      return `<tr data-method="${m.method}"${job ? ` data-job="${job.id}"` : ""}><th scope="row">${name}</th>${cells}</tr>`;
     });
-    table.innerHTML = `${head}<tbody>${rows.join("")}</tbody>`;
+    if (!append || !table.tBodies.length) table.innerHTML = `${head}<tbody>${rows.join("")}</tbody>`;
+    else table.tBodies[0].insertAdjacentHTML("beforeend", rows.join(""));
+  }
+
+  /** The row of ``method`` after a re-extraction: its level, counts and (with ground truth) scores. */
+  updateMetrics(info) {
+    const row = $("metrics").querySelector(`tr[data-method="${info.method}"]`);
+    if (!row) return;
+    const all = { ...(info.metrics || {}), threshold: info.threshold, points: info.points, faces: info.faces };
+    for (const td of row.querySelectorAll("td[data-metric]")) {
+      const c = td.dataset.metric;
+      if (c === "seconds") continue; // the job's time, not the extraction's
+      const v = all[c] ?? (info.metrics ? null : undefined);
+      if (v === undefined) continue; // no ground truth: its scores stay those of the job's level
+      td.textContent = fmt(v);
+      td.dataset.value = v ?? "";
+    }
+    row.dataset.tau = String(info.threshold);
+    $("metrics-note").textContent = info.metrics && "pc_surface_f1" in info.metrics
+      ? `${info.method}: scores at τ = ${fmt(info.threshold)} (re-extracted)`
+      : `${info.method}: counts at τ = ${fmt(info.threshold)}; the survey has no ground truth to score against`;
   }
 
   /** The pipeline's signs that a method's result failed, above the views. */

@@ -8,6 +8,8 @@ const STAGE = {
   report: "writing the report",
   done: "finishing",
   queued: "waiting for a worker",
+  autofocus: "estimating the sound speed and track (autofocus)",
+  simulate: "simulating the survey",
 };
 
 export function plainStage(stage) {
@@ -18,6 +20,7 @@ export function plainStage(stage) {
   const name = METHOD[method] || method;
   if (kind === "fit") return `training ${name}`;
   if (kind === "warm start") return `starting ${name} from the backprojection image`;
+  if (kind === "import") return "reading the survey";
   return stage;
 }
 

@@ -1,5 +1,5 @@
-// Viewer tools: reset the view, a scale bar in metres, and a point-to-point measurement on the
-// drawn surfaces (click two points; survey-frame metres).
+// Viewer tools: reset the view, a scale bar in metres, a point-to-point measurement on the
+// drawn surfaces (click two points; survey-frame metres), and the view saved as a PNG.
 
 import * as THREE from "three";
 
@@ -16,8 +16,9 @@ export function fmtMetres(m) {
 }
 
 export class ViewerTools {
-  constructor(viewer, { scalebar, measureBtn, resetBtn, out }) {
-    Object.assign(this, { viewer, scalebar, measureBtn, resetBtn, out });
+  constructor(viewer, { scalebar, measureBtn, resetBtn, out, shotBtn, shotName = () => "view" }) {
+    Object.assign(this, { viewer, scalebar, measureBtn, resetBtn, out, shotName });
+    shotBtn?.addEventListener("click", () => this.screenshot());
     this.measuring = false;
     this.picks = [];
     this.marks = new THREE.Group();
@@ -86,6 +87,40 @@ export class ViewerTools {
       this.out.dataset.metres = String(d);
     } else this.out.textContent = "first point set; click the second";
     this.viewer.render();
+  }
+
+  /** The view as drawn, with its scale bar, saved as ``<survey>_view.png``. */
+  async screenshot() {
+    const v = this.viewer;
+    v.render();
+    const src = v.canvas;
+    const img = Object.assign(document.createElement("canvas"), { width: src.width, height: src.height });
+    const g = img.getContext("2d");
+    g.drawImage(src, 0, 0);
+    if (!this.scalebar.hidden) {
+      // the bar as the page shows it, in the image's pixels
+      const k = src.width / src.clientWidth;
+      const px = Number(this.scalebar.dataset.px) * k;
+      const x = 12 * k;
+      const y = src.height - 14 * k;
+      g.strokeStyle = g.fillStyle = "#ffffff";
+      g.lineWidth = 2 * k;
+      g.beginPath();
+      g.moveTo(x, y - 5 * k);
+      g.lineTo(x, y);
+      g.lineTo(x + px, y);
+      g.lineTo(x + px, y - 5 * k);
+      g.stroke();
+      g.font = `${12 * k}px sans-serif`;
+      g.fillText(fmtMetres(Number(this.scalebar.dataset.metres)), x + 4 * k, y - 7 * k);
+    }
+    const blob = await new Promise((resolve) => img.toBlob(resolve, "image/png"));
+    const url = URL.createObjectURL(blob);
+    const a = Object.assign(document.createElement("a"), { href: url, download: `${this.shotName()}_view.png` });
+    document.body.append(a);
+    a.click();
+    a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
   }
 
   /** The bar shows a round length at the distance of the orbit's centre. */

@@ -1,5 +1,6 @@
 // The 3-D viewer: each method's mesh (GLB) and point cloud (PLY coloured by its scalar), the
-// ground truth when the survey has one; orbit, zoom and pan (mouse, touch and arrow keys).
+// ground truth when the survey has one; orbit, zoom and pan (mouse, touch and arrow keys); the
+// survey frame's axes in a corner.
 // Files are fetched through the API (with the session key) and parsed here.
 
 import * as THREE from "three";
@@ -11,11 +12,51 @@ const COLOURS = { backprojection: 0x4f9de0, reed: 0xe0a34f, shsas: 0x6fd08c, gro
 
 // viridis at 5 stops: scalars in [τ, 1] read as a familiar dark-to-bright scale
 const VIRIDIS = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]];
+
+/** The CSS colour a layer of ``key`` (a method, or "ground_truth") is drawn in: for legends. */
+export function layerColour(key) {
+  return `#${(COLOURS[key] ?? 0xcccccc).toString(16).padStart(6, "0")}`;
+}
+
+/** The point clouds' colour scale as a CSS gradient (low to high intensity). */
+export function viridisGradient() {
+  const stops = VIRIDIS.map((c, i) => `rgb(${c.map((v) => Math.round(v * 255)).join(",")}) ${(i / (VIRIDIS.length - 1)) * 100}%`);
+  return `linear-gradient(to right, ${stops.join(", ")})`;
+}
 function viridis(t) {
   const x = Math.min(Math.max(t, 0), 1) * (VIRIDIS.length - 1);
   const i = Math.min(Math.floor(x), VIRIDIS.length - 2);
   const f = x - i;
   return VIRIDIS[i].map((a, k) => a + (VIRIDIS[i + 1][k] - a) * f);
+}
+
+/** Side (CSS px) of the orientation gizmo drawn in the lower-right corner of each view. */
+export const GIZMO_PX = 84;
+
+/** A text label ("x") as a sprite, for the gizmo's axes. */
+function axisLabel(text, position, colour) {
+  const c = Object.assign(document.createElement("canvas"), { width: 64, height: 64 });
+  const g = c.getContext("2d");
+  g.fillStyle = colour;
+  g.font = "bold 44px sans-serif";
+  g.textAlign = "center";
+  g.textBaseline = "middle";
+  g.fillText(text, 32, 34);
+  const sprite = new THREE.Sprite(new THREE.SpriteMaterial({ map: new THREE.CanvasTexture(c), depthTest: false }));
+  sprite.position.set(...position);
+  sprite.scale.set(0.7, 0.7, 1);
+  return sprite;
+}
+
+/** The survey frame's axes (x red, y green, z blue and up), turned as the camera turns. */
+function makeGizmo() {
+  const scene = new THREE.Scene();
+  const axes = new THREE.AxesHelper(1);
+  axes.setColors(new THREE.Color(0xff5555), new THREE.Color(0x55dd55), new THREE.Color(0x5599ff));
+  scene.add(axes);
+  scene.add(axisLabel("x", [1.3, 0, 0], "#ff5555"), axisLabel("y", [0, 1.3, 0], "#55dd55"), axisLabel("z", [0, 0, 1.3], "#5599ff"));
+  const camera = new THREE.OrthographicCamera(-1.7, 1.7, 1.7, -1.7, 0.1, 10);
+  return { scene, camera };
 }
 
 export class Viewer {
@@ -41,6 +82,7 @@ export class Viewer {
     const sun = new THREE.DirectionalLight(0xffffff, 1.5);
     sun.position.set(1, -1, 2);
     this.scene.add(sun);
+    this.gizmo = makeGizmo();
     this.layers = new Map(); // name -> Object3D
     this.origin = null; // survey-frame point placed at the scene origin (float32 precision)
     new ResizeObserver(() => this.resize()).observe(canvas);
@@ -58,7 +100,20 @@ export class Viewer {
   }
 
   render() {
-    this.renderer.render(this.scene, this.camera);
+    const r = this.renderer;
+    r.render(this.scene, this.camera);
+    // the axes in the lower-right corner, seen from the camera's direction
+    const { scene, camera } = this.gizmo;
+    camera.position.copy(this.camera.position).sub(this.controls.target).setLength(4);
+    camera.up.copy(this.camera.up);
+    camera.lookAt(0, 0, 0);
+    const size = r.getSize(new THREE.Vector2());
+    r.autoClear = false;
+    r.clearDepth();
+    r.setViewport(size.x - GIZMO_PX, 0, GIZMO_PX, GIZMO_PX);
+    r.render(scene, camera);
+    r.setViewport(0, 0, size.x, size.y);
+    r.autoClear = true;
     this.onRender?.();
   }
 
