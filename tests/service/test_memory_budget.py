@@ -23,7 +23,7 @@ import pytest
 from jobs.layout import job_paths
 from jobs.settings import Settings
 from jobs.store import JobStore
-from tests.declared_size import unwritten_samples, zero_filled_samples
+from tests.helpers.declared_size import unwritten_samples, zero_filled_samples
 from worker.runner import execute_job
 
 from .conftest import FAST_TIMINGS, REPO, SHSAS, start_server, submit, wait_for, write_tiny_survey
