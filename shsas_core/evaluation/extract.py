@@ -26,8 +26,10 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    object fills the window) keeps its whole ridge above τ.
 3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.evaluation.ridge`): one sheet of
    sub-voxel points where the magnitude peaks, instead of the shell's full thickness.
-4. **Normals** across the sheet, each turned toward the sensors that lit its point (``sensors``,
-   the survey's transmitter positions).
+4. **Normals** across the sheet of the magnitude smoothed by ``normal_smoothing`` voxels (coarser
+   than the ridge's own ``smoothing``: speckle turns the fine sheet's direction along the surface),
+   each turned toward the sensors that lit its point (``sensors``, the survey's transmitter
+   positions).
 5. **Mesh:** screened Poisson through the oriented points, trimmed to the points, simplified
    (:mod:`shsas_core.evaluation.meshing`).
 
@@ -70,6 +72,8 @@ class ExtractConfig(BaseModel):
     close_boundary: bool = Field(True, description="pad with empty voxels so meshes close at the box faces")
     chunk: int = Field(65536, ge=1, description="grid points per field evaluation (memory bound)")
     smoothing: float = Field(1.5, ge=0, le=10, description="Gaussian smoothing before the ridge test, voxels")
+    normal_smoothing: float = Field(3.0, ge=0, le=10, description="Gaussian smoothing before the ridge "
+                                    "points' normals are taken, voxels")
     background_window: float = Field(0.05, gt=0, description="edge of the cube the local background "
                                      "mean is taken over, m")
     contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
@@ -219,6 +223,7 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         drop_small_pieces,
         orient_toward_sensors,
         ridge,
+        sheet_normals,
     )
 
     _check_tau(tau)
@@ -236,6 +241,8 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
         r = ridge(norm, norm >= tau, lo, grid.spacing, cfg.smoothing)
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
+    if cfg.normal_smoothing != cfg.smoothing:
+        r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, cfg.normal_smoothing))
     if sensors is None or len(np.atleast_2d(sensors)) == 0:
         centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))
         # a point "sensor" far out along each point's own direction from the centre
