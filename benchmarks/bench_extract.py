@@ -1,18 +1,21 @@
-"""Old against new extraction of the same backprojection image: points, mesh pieces, area, F@5mm, time.
+"""Old against new extraction of the same backprojection image: points, mesh pieces, area, NC, F@5mm, time.
 
 For each scene a small circular survey is simulated (``--heights`` x ``--angles`` pings, 20 dB),
 deconvolved and backprojected onto a ``--grid`` voxel grid over the scene box; then the image is
-extracted twice:
+extracted three ways:
 
 * old: the paper's extraction (Otsu level, every voxel at or above it, marching cubes at it):
   ``ExtractConfig(surface="threshold", mesher="marching_cubes")``;
+* fine-n: the default but with the ridge points' normals taken at the ridge's own smoothing
+  (``normal_smoothing = smoothing``, the default before the normals came from a coarser one);
 * new: the default (ridge points kept by the local-contrast test, normals toward the
   transmitters, screened Poisson, trimmed and simplified).
 
 Columns: points in the cloud; pieces = connected mesh components holding 95 % of its area; area =
-mesh area / ground-truth area; F@5mm of the point cloud and of the mesh (20,000 area-weighted
-points of it) against the ground-truth surface sample (``shsas_core.evaluation.metrics.fscore``); seconds
-of the extraction alone. Never asserts.
+mesh area / ground-truth area; NC = the mesh's normal consistency
+(``shsas_core.evaluation.metrics.mesh_quality``, the mesh check asks >= 0.85); F@5mm of the point
+cloud and of the mesh (20,000 area-weighted points of it) against the ground-truth surface sample
+(``shsas_core.evaluation.metrics.fscore``); seconds of the extraction alone. Never asserts.
 
 Usage::
 
@@ -52,10 +55,10 @@ def pieces95(mesh) -> int:
 
 
 def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> list[dict[str, float | str]]:
-    """Simulate, backproject and extract ``source`` both ways; one row per extraction."""
+    """Simulate, backproject and extract ``source`` each way; one row per extraction."""
     from shsas_core.data.volume import Grid
     from shsas_core.evaluation.extract import ExtractConfig, extract
-    from shsas_core.evaluation.metrics import fscore, sample_surface
+    from shsas_core.evaluation.metrics import GroundTruth, fscore, mesh_quality, sample_surface
     from shsas_core.imaging.backprojection import backproject_survey
     from shsas_core.pipeline.job import deconv_config
     from shsas_core.signal.deconv import deconvolve
@@ -68,9 +71,12 @@ def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> l
     image = backproject_survey(survey, vox, s_pd)
     gt = survey.ground_truth_mesh()
     gt_pts = sample_surface(np.asarray(gt.vertices), np.asarray(gt.faces))
+    truth = GroundTruth(np.asarray(gt.vertices), np.asarray(gt.faces), survey.meta.scene_box)
     rows = []
+    default = ExtractConfig()
     for name, cfg in (("old", ExtractConfig(surface="threshold", mesher="marching_cubes")),
-                      ("new", ExtractConfig())):
+                      ("fine-n", ExtractConfig(normal_smoothing=default.smoothing)),
+                      ("new", default)):
         t0 = time.perf_counter()
         tau, cloud, mesh = extract(image, cfg, sensors=survey.tx)
         seconds = time.perf_counter() - t0
@@ -79,6 +85,7 @@ def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> l
         rows.append({
             "extraction": name, "tau": tau, "points": float(len(cloud)), "faces": float(len(mesh.faces)),
             "pieces": float(pieces95(mesh)), "area": float(mesh.area / gt.area),
+            "nc": mesh_quality(mesh.vertices, mesh.faces, truth)["normal_consistency"] if len(mesh.faces) else 0.0,
             "f5_cloud": fscore(cloud.points, gt_pts)["fscore"] if len(cloud) else 0.0,
             "f5_mesh": fscore(mesh_pts, gt_pts)["fscore"] if len(mesh_pts) else 0.0,
             "seconds": seconds,
@@ -101,12 +108,12 @@ def main() -> None:
     meshes = fid.mesh_dir(args.meshes)
     print(f"{args.heights} x {args.angles} pings, 20 dB, grid {args.grid} (longest axis), seed {args.seed}")
     print(f"{'scene':8s} {'extraction':10s} {'tau':>6s} {'points':>8s} {'faces':>8s} {'pieces':>6s} "
-          f"{'area':>6s} {'F@5 pc':>7s} {'F@5 mesh':>8s} {'s':>6s}")
+          f"{'area':>6s} {'NC':>6s} {'F@5 pc':>7s} {'F@5 mesh':>8s} {'s':>6s}")
     for scene in args.scenes.split(","):
         rows = run_scene(fid.scene_source(scene, meshes), args.heights, args.angles, args.grid, args.seed)
         for r in rows:
             print(f"{scene:8s} {r['extraction']:10s} {r['tau']:6.3f} {r['points']:8.0f} {r['faces']:8.0f} "
-                  f"{r['pieces']:6.0f} {r['area']:6.2f} {r['f5_cloud']:7.3f} {r['f5_mesh']:8.3f} "
+                  f"{r['pieces']:6.0f} {r['area']:6.2f} {r['nc']:6.3f} {r['f5_cloud']:7.3f} {r['f5_mesh']:8.3f} "
                   f"{r['seconds']:6.1f}", flush=True)
         if args.record:
             default = (args.heights, args.angles, args.grid, args.seed) == (10, 90, 128, 0)

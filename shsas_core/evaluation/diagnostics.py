@@ -8,8 +8,8 @@ cheap enough to detect, that no result should leave the pipeline without being c
   ``(max - min) / max`` of the magnitude ``|values|`` (0 for an all-zero or constant volume).
 * ``box_filling`` — the volume at or above the extraction level τ fills a large share of the
   scene box instead of tracing a surface: a fog of density, not an object. Measure: voxels at or
-  above τ / grid voxels (the candidates of the ridge extraction, the whole cloud of a threshold
-  extraction).
+  above τ / grid voxels (the whole cloud of a threshold extraction; the ridge extraction's
+  candidates start lower, at half of τ, and go through its contrast test).
 * ``loss_not_falling`` — the fit's data loss (the ToF term, a relative residual: 1.0 = predicting
   zeros) ended where it started. Measure: mean data loss over the last :data:`LOSS_WINDOW` of the
   iterations / mean over the first; limit 0.9, lowered when the per-iteration noise is too large

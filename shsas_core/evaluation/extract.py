@@ -8,8 +8,11 @@ like a backprojection image's near-zero background.
 
 Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
 
-1. **Candidates:** voxels at or above τ. τ is ``threshold`` when given, else Otsu's threshold of
-   the normalised magnitude over the whole grid, clipped to ``[tau_min, tau_max]`` (Otsu splits
+1. **Candidates:** voxels at or above ``candidate_share`` x τ (half of it by default: a surface
+   lit at grazing angles, like the lower half of an object on the floor, is dimmer than the level
+   that splits the box, and the contrast test below, not τ, tells it from background; τ still
+   keeps a nearly empty volume's noise peaks out). τ is ``threshold`` when given, else Otsu's
+   threshold of the normalised magnitude over the whole grid, clipped to ``[tau_min, tau_max]`` (Otsu splits
    empty space from scatterers without assuming how much of the box the object fills; the clip
    keeps it off the floor of a nearly empty volume and off the single brightest voxel).
 2. **Contrast (a CFAR test):** a sonar image's background is not one level: sidelobes and clutter
@@ -26,8 +29,10 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    object fills the window) keeps its whole ridge above τ.
 3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.evaluation.ridge`): one sheet of
    sub-voxel points where the magnitude peaks, instead of the shell's full thickness.
-4. **Normals** across the sheet, each turned toward the sensors that lit its point (``sensors``,
-   the survey's transmitter positions).
+4. **Normals** across the sheet of the magnitude smoothed by ``normal_smoothing`` voxels (coarser
+   than the ridge's own ``smoothing``: speckle turns the fine sheet's direction along the surface),
+   each turned toward the sensors that lit its point (``sensors``, the survey's transmitter
+   positions).
 5. **Mesh:** screened Poisson through the oriented points, trimmed to the points, simplified
    (:mod:`shsas_core.evaluation.meshing`).
 
@@ -67,9 +72,13 @@ class ExtractConfig(BaseModel):
     percentile: float = Field(99.0, gt=0, lt=100, description="for rule='percentile': keep voxels above it")
     tau_min: float = Field(0.05, gt=0, lt=1, description="lower clip of the rule's τ")
     tau_max: float = Field(0.9, gt=0, lt=1, description="upper clip of the rule's τ")
+    candidate_share: float = Field(0.5, gt=0, le=1, description="ridge candidates at or above this "
+                                   "share of τ (then the contrast test)")
     close_boundary: bool = Field(True, description="pad with empty voxels so meshes close at the box faces")
     chunk: int = Field(65536, ge=1, description="grid points per field evaluation (memory bound)")
     smoothing: float = Field(1.5, ge=0, le=10, description="Gaussian smoothing before the ridge test, voxels")
+    normal_smoothing: float = Field(3.0, ge=0, le=10, description="Gaussian smoothing before the ridge "
+                                    "points' normals are taken, voxels")
     background_window: float = Field(0.05, gt=0, description="edge of the cube the local background "
                                      "mean is taken over, m")
     contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
@@ -92,7 +101,8 @@ class PointCloud:
     Attributes:
         points: (P, 3) float64 positions, m, survey frame (voxel centres for a threshold cloud,
             sub-voxel ridge points for a ridge cloud).
-        scalars: (P,) float32 normalised magnitude at the point's voxel, in [τ, 1].
+        scalars: (P,) float32 normalised magnitude at the point's voxel, in [τ, 1] (ridge clouds:
+            from ``candidate_share`` x τ).
         normals: (P, 3) float64 unit normals facing the sensors (ridge clouds), or None.
     """
 
@@ -208,7 +218,7 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
 
     Args:
         volume: the reconstruction.
-        tau: candidate level on the normalised magnitude.
+        tau: the level τ on the normalised magnitude (candidates from ``candidate_share`` x τ).
         sensors: (M, 3) positions of the sensors (transmitters) that lit the scene, m; None:
             normals face away from the centre of the scene box.
     Returns:
@@ -219,6 +229,7 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         drop_small_pieces,
         orient_toward_sensors,
         ridge,
+        sheet_normals,
     )
 
     _check_tau(tau)
@@ -228,7 +239,7 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     contrast = local_contrast(norm, grid.spacing, cfg.background_window)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
     lo = np.asarray(grid.box_min)
-    r = ridge(norm, (norm >= tau) & (contrast >= weak), lo, grid.spacing, cfg.smoothing)
+    r = ridge(norm, (norm >= cfg.candidate_share * tau) & (contrast >= weak), lo, grid.spacing, cfg.smoothing)
     r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
     r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
     if len(r) < max(grid.shape):
@@ -236,6 +247,8 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
         r = ridge(norm, norm >= tau, lo, grid.spacing, cfg.smoothing)
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
+    if cfg.normal_smoothing != cfg.smoothing:
+        r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, cfg.normal_smoothing))
     if sensors is None or len(np.atleast_2d(sensors)) == 0:
         centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))
         # a point "sensor" far out along each point's own direction from the centre

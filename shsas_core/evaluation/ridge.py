@@ -17,7 +17,10 @@ sheet's orientation (non-maximum suppression along ``n``). Its point is the peak
 ``c + t* n``, so points sit on the ridge to a fraction of a voxel rather than on voxel centres.
 
 The volume gradient vanishes on the ridge, so the normal is ``n`` (the gradient's direction just
-off the ridge, up to sign); :func:`orient_toward_sensors` gives it a sign.
+off the ridge, up to sign); :func:`orient_toward_sensors` gives it a sign. The smoothing that
+places the ridge to a fraction of a voxel is too fine for its direction on a speckled image: the
+across-sheet direction of a more heavily smoothed copy (:func:`sheet_normals`) follows the surface
+better where speckle makes the fine one turn along the sheet.
 """
 
 from __future__ import annotations
@@ -137,6 +140,20 @@ def ridge(values: np.ndarray, candidates: np.ndarray, box_min: np.ndarray, spaci
     pts = centres + t[:, None] * n
     vals = s[tuple(idx.T)].astype(np.float32)
     return Ridge(idx.astype(np.int64), pts, n, vals)
+
+
+def sheet_normals(values: np.ndarray, index: np.ndarray, spacing: np.ndarray, sigma: float) -> np.ndarray:
+    """Across-sheet directions of ``values`` smoothed by ``sigma`` voxels at voxels ``index``.
+
+    Args:
+        values: (X, Y, Z) magnitude; index: (P, 3) voxel indices; spacing: (3,) voxel size, m.
+    Returns:
+        (P, 3) unit eigenvectors of the smoothed Hessian's most negative eigenvalue (sign arbitrary).
+    """
+    if len(index) == 0:
+        return np.zeros((0, 3))
+    _, hess = derivatives(smooth(values, sigma), index, np.asarray(spacing, dtype=np.float64))
+    return np.linalg.eigh(hess)[1][:, :, 0]
 
 
 def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float) -> Ridge:
