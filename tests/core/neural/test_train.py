@@ -324,10 +324,10 @@ def test_envelope_target_fits_the_magnitude_of_s_pd(small):
 
 
 def test_lr_decay_reaches_lr_final_and_resumes_exactly(small, tmp_path):
-    from shsas_core.neural.train import _scheduled_lr
+    from shsas_core.neural.train import scheduled_lr
 
     cfg = _cfg(lr=1e-2, lr_final=1e-4)
-    lrs = [_scheduled_lr(cfg, i) for i in range(cfg.iters)]
+    lrs = [scheduled_lr(cfg, i) for i in range(cfg.iters)]
     assert lrs[0] == pytest.approx(1e-2) and lrs[-1] == pytest.approx(1e-4)
     assert np.allclose(np.diff(np.log(lrs)), np.log(1e-2) / (cfg.iters - 1))  # exponential
     survey, sig = small
