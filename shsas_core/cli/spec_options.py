@@ -19,7 +19,8 @@ OPTION_NAMES: dict[str, str] = {"deconvolution": "deconv", "num_bins": "bins", "
                                 "holdout_fraction": "holdout"}
 #: Placeholders in the help for the options whose value has a name in the docs.
 _METAVARS: dict[str, str] = {"sh_degree": "L", "threshold": "TAU", "occupancy": "LEVEL",
-                             "sparsity": "WEIGHT", "angular_prior": "WEIGHT", "holdout_fraction": "FRACTION",
+                             "sparsity": "WEIGHT", "angular_prior": "WEIGHT",
+                             "tv_density": "WEIGHT", "tv_scatter": "WEIGHT", "tv_phase": "WEIGHT", "holdout_fraction": "FRACTION",
                              "average_last": "FRACTION", "normal_window": "SAMPLES",
                              "coarse_to_fine": "FRACTION"}
 #: Given for an optional field (``--occupancy none``): the field's None.

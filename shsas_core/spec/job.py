@@ -38,6 +38,9 @@ from shsas_core.spec.options import (
     SURFACE_HELP,
     TARGET,
     TARGET_HELP,
+    TV_DENSITY_HELP,
+    TV_PHASE_HELP,
+    TV_SCATTER_HELP,
     AngularPrior,
     AverageLast,
     CoarseToFine,
@@ -57,6 +60,7 @@ from shsas_core.spec.options import (
     SparsityWeight,
     Surface,
     Target,
+    TVWeight,
 )
 
 #: The spec fields that only change extraction: a finished job re-extracts from its saved volumes
@@ -117,6 +121,9 @@ class ReconstructionSpec(BaseModel):
         "empty space, which otherwise lowers the extraction level (docs/neural.md); 0: off, as in "
         "the paper's simulated setting")
     angular_prior: AngularPrior = Field(ANGULAR_PRIOR, description=ANGULAR_PRIOR_HELP)
+    tv_density: TVWeight = Field(0.0, description=TV_DENSITY_HELP)
+    tv_scatter: TVWeight = Field(0.0, description=TV_SCATTER_HELP)
+    tv_phase: TVWeight = Field(0.0, description=TV_PHASE_HELP)
     normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)

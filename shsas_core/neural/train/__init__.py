@@ -11,12 +11,12 @@ per ping (∝ |s_PD| plus a uniform share), renders them with ``num_rays`` TX ra
   (averaged over the training pings); predicting zeros scores 1.0 in expectation, so the value
   reads as a relative residual.
 * ``L_sparse = mean ρ(x)`` over the valid samples (L1: ρ >= 0).
-* TV terms compare the field at ``R`` random valid samples ``x`` and at ``x + δ``, ``δ`` a random
+* TV terms compare the field at ``REGULARISER_POINTS`` (4096) random valid samples ``x`` and at ``x + δ``, ``δ`` a random
   direction of length ``tv_delta`` (default: 1/128 of the scene-box diagonal):
   ``TV(ρ) = mean |ρ(x) - ρ(x+δ)|``, ``TV(|σ|) = mean ||σ(x)| - |σ(x+δ)||``,
   ``TV(∠σ) = mean |e^{i∠σ(x)} - e^{i∠σ(x+δ)}|`` (chord distance on the unit circle: ≈ |Δφ|
   for small differences, no 2π wrap, bounded gradient).
-* ``L_ang = Σ_x Σ_lm l(l+1)|c_lm(x)|² / Σ_x |c_00(x)|²`` over the same ``R`` samples: the
+* ``L_ang = Σ_x Σ_lm l(l+1)|c_lm(x)|² / Σ_x |c_00(x)|²`` over the same samples: the
   scattering lobe's Dirichlet energy on the sphere relative to its isotropic energy
   (:func:`relative_angular_roughness`), a prior towards smooth, low-degree lobes (not in the paper).
 
@@ -40,7 +40,7 @@ iteration, loss history and the global torch/numpy/python RNG states, written at
 therefore resumes to the same loss curve as an uninterrupted run.
 
 The package, one concern a module: :mod:`~.config` (the options), :mod:`~.data` (signals and the
-batch sampler), :mod:`~.losses`, :mod:`~.schedules` (lr decay, progressive SH, coarse-to-fine
+batch sampler), :mod:`~.losses`, :mod:`~.schedules` (lr decay, coarse-to-fine
 levels, weight averaging, as callbacks of the loop), :mod:`~.checkpoint`, :mod:`~.loop` (the
 :class:`Trainer` and :func:`fit`) and :mod:`~.evaluate` (the whole-ping evaluator).
 """

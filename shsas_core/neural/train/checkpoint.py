@@ -47,6 +47,21 @@ def fingerprint(cfg: TrainConfig, field: torch.nn.Module, data: TrainingData) ->
     return {"train": c, "field": f, "pings": data.pings.tolist(), "energy": data.energy}
 
 
+#: Options TrainConfig no longer has, each with the one behaviour that remains: a checkpoint whose
+#: fingerprint names them at these values was made by the same training and still resumes.
+RETIRED_OPTIONS: dict[str, object] = {"reg_start": 0, "tv_points": 4096, "learn_amplitude": True,
+                                      "progressive_sh_every": None}
+
+
+def comparable(stored: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A stored fingerprint without the retired options that hold their remaining behaviour."""
+    if not stored or not isinstance(stored.get("train"), dict):
+        return stored
+    train = {k: v for k, v in stored["train"].items()
+             if not (k in RETIRED_OPTIONS and v == RETIRED_OPTIONS[k])}
+    return {**stored, "train": train}
+
+
 def rng_state() -> dict[str, Any]:
     """The global RNG states (torch, numpy, python, CUDA where present)."""
     return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),

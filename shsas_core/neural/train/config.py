@@ -85,17 +85,11 @@ class TrainConfig(BaseModel):
     target: Target = Field(TARGET, description=TARGET_HELP)
     weights: LossWeights = LossWeights()
     tv_delta: float | None = Field(None, gt=0, description="TV offset length, m; None: box diagonal/128")
-    tv_points: int = Field(4096, ge=1, description="samples per iteration used by the TV terms "
-                            "and the angular prior")
-    reg_start: int = Field(0, ge=0, description="iteration from which λ2..λ6 apply")
-    learn_amplitude: bool = Field(True, description="learn the global scale A (else fixed at its init)")
     psf_window: int = Field(64, ge=1, le=4096, description="with a point-spread kernel (fit's psf): "
                             "contiguous target bins per ping and iteration (replaces num_bins)")
     seed: Seed = SEED
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
     coarse_to_fine: CoarseToFine | None = Field(COARSE_TO_FINE, description=COARSE_TO_FINE_HELP)
-    progressive_sh_every: int | None = Field(
-        None, ge=1, description="raise the active SH degree by one every N iterations (starts at 0)")
     checkpoint_every: int = Field(500, ge=1)
     heap_cache: bool = Field(True, description="keep freed CPU buffers in the heap during the loop "
                              "(glibc; no per-iteration page faults, see shsas_core.common.heap)")

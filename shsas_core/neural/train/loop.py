@@ -21,6 +21,7 @@ from shsas_core.neural.fields.base import device_dtype
 from shsas_core.neural.fields.occupancy import MaskedField, OccupancyGrid
 from shsas_core.neural.train.checkpoint import (
     CHECKPOINT_NAME,
+    comparable,
     fingerprint,
     load_checkpoint,
     restore_rng_state,
@@ -96,8 +97,7 @@ class Trainer:
         self.dtype = device_dtype(field)[1]
         self.callbacks = schedules(field, cfg)
         self.amplitude = Amplitude().to(device)
-        params = list(field.parameters()) + ([self.amplitude.log_amplitude] if cfg.learn_amplitude else [])
-        self.optimizer = torch.optim.Adam(params, lr=cfg.lr)
+        self.optimizer = torch.optim.Adam([*field.parameters(), self.amplitude.log_amplitude], lr=cfg.lr)
         box = self.survey.meta.scene_box
         self.tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
         self.fingerprint = fingerprint(cfg, field, self.data)
@@ -124,7 +124,7 @@ class Trainer:
             path.parent.mkdir(parents=True, exist_ok=True)
             return False
         ck = load_checkpoint(path, self.device)
-        if ck.get("fingerprint") != json.loads(json.dumps(self.fingerprint)):
+        if comparable(ck.get("fingerprint")) != json.loads(json.dumps(self.fingerprint)):
             raise ShsasError(f"fit: checkpoint {path} was made with a different configuration, "
                              "survey or field (fix: use a new output directory or delete it)")
         self.field.load_state_dict(ck["field"])

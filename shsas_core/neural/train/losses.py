@@ -22,6 +22,9 @@ from shsas_core.neural.train.data import (
     sample_psf_batch,
 )
 
+#: Random valid samples per iteration at which the TV priors and the angular prior look at the field.
+REGULARISER_POINTS = 4096
+
 
 class Amplitude(torch.nn.Module):
     """The global real scale ``A = exp(log_amplitude)`` between the field's output and the data."""
@@ -68,7 +71,7 @@ def regularisers(field, out: dict, geom: PingGeometry, cfg: TrainConfig, gen: to
     if flat.numel() == 0:
         zero = dens.sum() * 0
         return terms | {"tv_density": zero, "tv_scatter": zero, "tv_phase": zero, "angular": zero}
-    perm = torch.randperm(flat.numel(), generator=gen)[: cfg.tv_points].to(flat.device)
+    perm = torch.randperm(flat.numel(), generator=gen)[:REGULARISER_POINTS].to(flat.device)
     sel = flat[perm]
     x = out["x"].reshape(-1, 3)[sel]
     if w.angular > 0:
@@ -134,7 +137,7 @@ def iteration_loss(field, amp_mod: Amplitude, data: TrainingData, survey, cfg: T
     data_loss = (pred - target).abs().pow(2).mean() / data.energy
     w = cfg.weights
     loss = w.tof * data_loss
-    if it >= cfg.reg_start and (w.sparsity > 0 or w.any_sampled):
+    if w.sparsity > 0 or w.any_sampled:
         reg = regularisers(field, out, geom, cfg, gen, tv_delta)
         loss = loss + w.sparsity * reg["sparsity"]
         if w.angular > 0:

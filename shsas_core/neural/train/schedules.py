@@ -64,21 +64,6 @@ class LearningRateDecay(Callback):
             group["lr"] = scheduled_lr(self.cfg, it)
 
 
-class ProgressiveSH(Callback):
-    """Degrees above ``it // every`` zeroed (``ScatteringField.set_active_degree``)."""
-
-    def __init__(self, field: torch.nn.Module, every: int) -> None:
-        if not isinstance(field, ScatteringField):
-            raise ShsasError("fit: progressive_sh_every needs a ScatteringField (set_active_degree), e.g. SHField")
-        self.field, self.every = field, every
-
-    def before_step(self, trainer: Trainer, it: int) -> None:
-        self.field.set_active_degree(it // self.every)
-
-    def end(self, trainer: Trainer) -> None:
-        self.field.set_active_degree(None)
-
-
 def coarse_start_levels(encoding: Any) -> int:
     """Hash levels on at the start of a coarse-to-fine fit: those of resolution up to
     :data:`COARSE_TO_FINE_START_RESOLUTION` (at least one)."""
@@ -162,8 +147,6 @@ class WeightAverage(Callback):
 def schedules(field: torch.nn.Module, cfg: TrainConfig) -> list[Callback]:
     """The callbacks ``cfg`` asks for, in the order they run before each step."""
     out: list[Callback] = []
-    if cfg.progressive_sh_every is not None:
-        out.append(ProgressiveSH(field, cfg.progressive_sh_every))
     # a plain module (a test or benchmark stand-in) has no hash levels to bring in
     if cfg.coarse_to_fine is not None and isinstance(field, ScatteringField):
         out.append(CoarseToFine(field, cfg.coarse_to_fine, cfg.iters))

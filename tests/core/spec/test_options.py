@@ -58,13 +58,15 @@ def test_train_config_passes_every_spec_option():
 
     spec = ReconstructionSpec(iters=7, lr=0.5, lr_final=0.01, num_bins=5, num_rays=6, pings_per_batch=2,
                               seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5,
-                              coarse_to_fine=0.25, angular_prior=0.7)
+                              coarse_to_fine=0.25, angular_prior=0.7, tv_density=0.1, tv_scatter=0.2,
+                              tv_phase=0.3)
     cfg = train_config(spec)
     for field, (model, name) in SHARED.items():
         owner = cfg.render_config() if model is RenderConfig else cfg
         assert getattr(owner, name) == getattr(spec, field), field
     assert cfg.weights.sparsity == spec.sparsity
     assert cfg.weights.angular == spec.angular_prior
+    assert (cfg.weights.tv_density, cfg.weights.tv_scatter, cfg.weights.tv_phase) == (0.1, 0.2, 0.3)
 
 
 def test_spec_encoding_names_the_encoding_presets():
