@@ -31,8 +31,8 @@ the surface explains it within a few hundred iterations (docs/neural.md).
 ``A = exp(log_amplitude)`` is one learnable real scale, initialised in closed form before the
 first step as ``‖s‖ / ‖ŝ‖`` over 8 seeded batches, so the field does not have to grow its output by
 orders of magnitude to meet the data's units. Default weights follow the paper's simulated
-setting (regularisers off: λ1 = 1, λ2..λ6 = 0); :data:`AIRSAS_WEIGHTS` keeps the ratios of the
-public AirSAS configuration.
+setting (regularisers off: λ1 = 1, λ2..λ6 = 0); the job spec sets λ2..λ6 (sparsity, the TV
+weights, the angular prior).
 
 Determinism and resume: every random draw of iteration ``i`` comes from generators seeded with
 ``(seed, i)``, so the draws do not depend on history; a checkpoint (field, amplitude, optimiser,
@@ -46,7 +46,7 @@ levels, weight averaging, as callbacks of the loop), :mod:`~.checkpoint`, :mod:`
 """
 
 from shsas_core.neural.train.checkpoint import CHECKPOINT_NAME, load_checkpoint
-from shsas_core.neural.train.config import AIRSAS_WEIGHTS, LossWeights, TrainConfig
+from shsas_core.neural.train.config import LossWeights, TrainConfig
 from shsas_core.neural.train.evaluate import evaluate_data_loss
 from shsas_core.neural.train.loop import FitResult, Trainer, fit
 from shsas_core.neural.train.losses import convolve_psf, relative_angular_roughness
@@ -54,7 +54,7 @@ from shsas_core.neural.train.schedules import active_levels, coarse_start_levels
 from shsas_core.spec.options import COARSE_TO_FINE_START_RESOLUTION
 
 __all__ = [
-    "AIRSAS_WEIGHTS", "CHECKPOINT_NAME", "COARSE_TO_FINE_START_RESOLUTION", "FitResult", "LossWeights",
+    "CHECKPOINT_NAME", "COARSE_TO_FINE_START_RESOLUTION", "FitResult", "LossWeights",
     "TrainConfig", "Trainer", "active_levels", "coarse_start_levels", "convolve_psf", "evaluate_data_loss",
     "fit", "load_checkpoint", "relative_angular_roughness", "scheduled_lr",
 ]

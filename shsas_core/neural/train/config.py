@@ -60,11 +60,6 @@ class LossWeights(BaseModel):
         return self.any_tv or self.angular > 0
 
 
-#: Ratios of the public AirSAS configuration of the paper (sparsity 1e1, smooth 5e1, phase 1e-1
-#: relative to a data term that was a plain mean squared error); a starting point for real data.
-AIRSAS_WEIGHTS = LossWeights(tof=1.0, sparsity=1e-3, tv_density=0.0, tv_scatter=5e-3, tv_phase=1e-5)
-
-
 #: The sampling options TrainConfig owns and hands to its RenderConfig.
 _SAMPLING = frozenset({"num_bins", "num_rays", "uniform_fraction"})
 
