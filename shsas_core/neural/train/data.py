@@ -13,8 +13,9 @@ import numpy as np
 import torch
 
 from shsas_core.common.errors import ShsasError
+from shsas_core.data.geometry import two_way_range_bounds
 from shsas_core.neural.render.renderer import passband_factor, ping_geometry
-from shsas_core.neural.render.sampling import bin_radii, sample_bins, scene_range_window
+from shsas_core.neural.render.sampling import bin_radii, sample_bins
 from shsas_core.neural.train.config import TrainConfig
 
 
@@ -34,8 +35,7 @@ def window_mask(survey, pings: np.ndarray) -> np.ndarray:
     """(len(pings), T) bool: samples whose two-way path lies in the scene's range window and
     beyond the TX-RX baseline (the bins training may draw)."""
     radii = bin_radii(survey.t0[pings], survey.meta.fs, survey.meta.sound_speed, survey.num_samples)
-    box = survey.meta.scene_box
-    r_lo, r_hi = scene_range_window(survey.tx[pings], survey.rx[pings], box.min, box.max)
+    r_lo, r_hi = two_way_range_bounds(survey.tx[pings], survey.rx[pings], survey.meta.scene_box)
     base = np.linalg.norm(survey.tx[pings] - survey.rx[pings], axis=1)
     return (radii >= r_lo[:, None]) & (radii <= r_hi[:, None]) & (radii > base[:, None])
 

@@ -351,7 +351,8 @@ def test_lr_decay_reaches_lr_final_and_resumes_exactly(small, tmp_path):
 
 
 def test_evaluate_data_loss_against_a_direct_sum(small):
-    from shsas_core.neural.render.sampling import bin_radii, scene_range_window
+    from shsas_core.data.geometry import two_way_range_bounds
+    from shsas_core.neural.render.sampling import bin_radii
     from shsas_core.neural.train import evaluate_data_loss
 
     survey, sig = small
@@ -369,7 +370,7 @@ def test_evaluate_data_loss_against_a_direct_sum(small):
     box = survey.meta.scene_box
     for row, n in enumerate(pings):
         r = bin_radii(survey.t0[[n]], survey.meta.fs, survey.meta.sound_speed, survey.num_samples)[0]
-        lo, hi = scene_range_window(survey.tx[[n]], survey.rx[[n]], box.min, box.max)
+        lo, hi = two_way_range_bounds(survey.tx[[n]], survey.rx[[n]], box)
         base = np.linalg.norm(survey.tx[n] - survey.rx[n])
         ks = [k for k in range(survey.num_samples) if lo[0] <= r[k] <= hi[0] and r[k] > base]
         tot = sum(abs(complex(sig[n, k])) for k in ks)
