@@ -7,9 +7,10 @@ own config models (``DeconvConfig``, ``BackprojectionConfig``, ``FieldConfig``, 
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic.json_schema import DEFAULT_REF_TEMPLATE
 
 from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import auto_grid_count
@@ -143,6 +144,21 @@ class ReconstructionSpec(BaseModel):
         if len(set(v)) != len(v):
             raise ValueError(f"methods must not repeat: {v}")
         return v
+
+
+def spec_json_schema(ref_template: str = DEFAULT_REF_TEMPLATE) -> dict[str, Any]:
+    """:class:`ReconstructionSpec`'s JSON schema with every property's default filled in (pydantic
+    leaves out the defaults of factory-made fields such as ``methods``): the one the HTTP API
+    publishes and the console builds its form from, and the one the CLI builds its options from.
+
+    Args:
+        ref_template: how references to nested models are written (the OpenAPI document puts
+            them under ``#/components/schemas/``).
+    """
+    schema = ReconstructionSpec.model_json_schema(ref_template=ref_template)
+    for name, value in ReconstructionSpec().model_dump(mode="json").items():
+        schema["properties"][name].setdefault("default", value)
+    return schema
 
 
 #: The paper's setting (SH-SAS §5: Adam at lr 1e-3, coherent data term on ideally deconvolved

@@ -9,10 +9,15 @@ import typing
 
 import pytest
 
-from shsas_core.cli.spec_options import bounds_text, option_name, spec_schema, value_schema
+from shsas_core.cli.spec_options import bounds_text, option_name, value_schema
 from shsas_core.neural.render import RenderConfig
 from shsas_core.neural.train import TrainConfig
-from shsas_core.spec.job import ReconstructionSpec
+from shsas_core.spec.job import ReconstructionSpec, spec_json_schema
+
+def spec_schema() -> dict:
+    """Field name -> the JSON schema of that spec field (as the API and the CLI read it)."""
+    return spec_json_schema()["properties"]
+
 
 #: Spec field -> (config, its field) that the pipeline hands the value to.
 SHARED = {
@@ -104,10 +109,10 @@ def test_every_spec_field_is_an_option_with_the_spec_bounds_and_default(command)
 def test_api_schema_is_the_spec_schema():
     """The API serves the spec's own schema (with factory defaults filled in), the one the CLI reads."""
     pytest.importorskip("fastapi")
-    from service.console import spec_schema as api_schema
+    from service.console import reconstruction_spec_schema
 
-    api = api_schema()["properties"]
-    assert {k: _bounds(v) for k, v in api.items()} == {k: _bounds(v) for k, v in spec_schema().items()}
+    assert reconstruction_spec_schema() == spec_json_schema()
+    assert spec_schema()["methods"]["default"] == ["backprojection", "reed", "shsas"]
 
 
 def test_cli_grid_bounds_are_the_spec_bounds(tmp_path):
