@@ -14,6 +14,7 @@ from shsas_core.neural.render import RenderConfig
 from shsas_core.neural.train import TrainConfig
 from shsas_core.spec.job import ReconstructionSpec, spec_json_schema
 
+
 def spec_schema() -> dict:
     """Field name -> the JSON schema of that spec field (as the API and the CLI read it)."""
     return spec_json_schema()["properties"]
