@@ -31,6 +31,7 @@ from shsas_core.data.volume import Grid, Volume
 from shsas_core.evaluation.align import aligned_scores
 from shsas_core.formats import load_survey
 from shsas_core.imaging.backprojection import BackprojectionConfig, backproject_survey
+from shsas_core.outputs.export import write_volume_npy
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 FOLDER = SHARED / "data" / "airsas" / "bunny_20k_deconvolved"
@@ -114,7 +115,7 @@ def main() -> None:
     ap.add_argument("--yaw-starts", type=int, default=12)
     ap.add_argument("--pictures", default=None, help="folder for the PNGs")
     ap.add_argument("--tag", default="bp")
-    ap.add_argument("--save-volume", default=None, help="write |image| as .npy here")
+    ap.add_argument("--save-volume", default=None, help="write |image| here (.npy + .json grid sidecar, the reconstruct volume format)")
     ap.add_argument("--volumes", default=None,
                     help="score the *_volume.npy of a `shsas reconstruct` output folder instead (one line each)")
     args = ap.parse_args()
@@ -138,7 +139,7 @@ def main() -> None:
     t_bp = time.perf_counter() - t
     mag = Volume(grid, np.abs(vol.values).astype(np.float32), name="backprojection")
     if args.save_volume:
-        np.save(args.save_volume, mag.values)
+        write_volume_npy(mag, args.save_volume)
     mesh = trimesh.load(MESH, force="mesh")
     t = time.perf_counter()
     scores, best = aligned_scores(mag, np.asarray(mesh.vertices), np.asarray(mesh.faces), yaw_starts=args.yaw_starts)

@@ -44,14 +44,9 @@ def _one(args: argparse.Namespace) -> dict:
     from shsas_core.neural.fields import SHField, encoding_preset
     from shsas_core.neural.fields.config import FieldConfig
     from shsas_core.neural.render import RenderConfig
-    from shsas_core.neural.train import (
-        TrainConfig,
-        _Amplitude,
-        _batch,
-        _generator,
-        _prepare,
-        _render_batch,
-    )
+    from shsas_core.neural.train import TrainConfig
+    from shsas_core.neural.train.data import iteration_generator, prepare_data, sample_batch
+    from shsas_core.neural.train.losses import Amplitude, render_batch
 
     fast = args.mode == "fast"
     bins, rays = CASES[args.case]
@@ -75,14 +70,14 @@ def _one(args: argparse.Namespace) -> dict:
     # (render's uniform_fraction=1.0 was given here before, and TrainConfig replaced it with its own
     # 0.1 without a word; it is now an error, and the bench keeps measuring what it always measured)
     cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device, render=RenderConfig(backend="fast" if fast else "reference"))
-    data = _prepare(survey, sig, None, cfg.uniform_fraction)
-    amp = _Amplitude().to(dev)
+    data = prepare_data(survey, sig, None, cfg.uniform_fraction)
+    amp = Amplitude().to(dev)
     opt = torch.optim.Adam([*list(field.parameters()), amp.log_amplitude], lr=1e-3)
 
     def step(i: int) -> None:
-        gen = _generator(0, i)
-        _p, geom, radii, target = _batch(data, survey, gen, cfg, dev, torch.float32)
-        out = _render_batch(field, amp, geom, radii, cfg, gen)
+        gen = iteration_generator(0, i)
+        _p, geom, radii, target = sample_batch(data, survey, gen, cfg, dev, torch.float32)
+        out = render_batch(field, amp, geom, radii, cfg, gen)
         loss = (out["signal"].to(target.dtype) - target).abs().pow(2).mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()

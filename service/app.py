@@ -22,7 +22,7 @@ from fastapi.staticfiles import StaticFiles
 
 from jobs.settings import Settings, get_settings
 from jobs.store import JobStore
-from shsas_core.spec.job import ReconstructionSpec
+from shsas_core.spec.job import spec_json_schema
 from worker.reconciler import Reconciler
 
 from .deps import RETRY_AFTER_S, unavailable
@@ -163,7 +163,7 @@ def _offline_docs(app: FastAPI) -> None:
         # FastAPI does not put its schema in the components: add it (and its own $defs).
         if app.openapi_schema is None:
             schema = plain_openapi()
-            spec = ReconstructionSpec.model_json_schema(ref_template="#/components/schemas/{model}")
+            spec = spec_json_schema(ref_template="#/components/schemas/{model}")
             components = schema.setdefault("components", {}).setdefault("schemas", {})
             components.update(spec.pop("$defs", {}))
             components["ReconstructionSpec"] = spec

@@ -14,7 +14,7 @@ from fastapi import APIRouter, FastAPI, HTTPException
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from shsas_core.spec.job import ReconstructionSpec
+from shsas_core.spec.job import spec_json_schema
 
 #: Where `make console` writes the built page (package data in ``service/console/``; git-ignored).
 STATIC = Path(__file__).resolve().parent.parent / "console" / "static"
@@ -25,19 +25,10 @@ CSP = ("default-src 'self'; img-src 'self' blob: data:; style-src 'self' 'unsafe
 router = APIRouter()
 
 
-def spec_schema() -> dict[str, Any]:
-    """ReconstructionSpec's JSON schema with every property's default filled in (pydantic leaves
-    out the defaults of factory-made fields such as ``methods``)."""
-    schema = ReconstructionSpec.model_json_schema()
-    for name, value in ReconstructionSpec().model_dump(mode="json").items():
-        schema["properties"][name].setdefault("default", value)
-    return schema
-
-
 @router.get("/schemas/reconstruction-spec", tags=["specs"])
 def reconstruction_spec_schema() -> dict[str, Any]:
     """The JSON schema of the `spec` form field of POST /reconstructions, defaults filled in."""
-    return spec_schema()
+    return spec_json_schema()
 
 
 @router.get("/", include_in_schema=False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -12,8 +13,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "backproject", help="image a survey by time-domain backprojection (complex voxel volume)",
         description="Backproject a survey onto a voxel grid over its scene box: every voxel sums "
         "each ping's signal at the voxel's two-way time of flight (linear interpolation, carrier "
-        "phase restored). Writes DIR/volume.npy (complex64, shape = grid), DIR/magnitude.npy "
-        "(float32 |volume|) and DIR/grid.json (box, shape, spacing, settings). "
+        "phase restored). Writes DIR/volume.npy (complex64, shape = grid) and its sidecar "
+        "DIR/volume.json (box, shape, spacing, settings), the volume format of `shsas reconstruct`. "
         "The signal imaged is the pulse-deconvolved one by default (the survey's stored "
         "extras/deconvolved when present and --deconv is not given, else computed with --deconv).",
         epilog="Example: shsas backproject survey.h5 --grid 128 --out bp/ --device auto")
@@ -48,11 +49,8 @@ def run(args: argparse.Namespace) -> int:
     from shsas_core.common.progress import TqdmProgress
     from shsas_core.data.volume import Grid
     from shsas_core.formats import load_survey
-    from shsas_core.imaging.backprojection import (
-        BackprojectionConfig,
-        backproject_survey,
-        save_volume,
-    )
+    from shsas_core.imaging.backprojection import BackprojectionConfig, backproject_survey
+    from shsas_core.outputs.export import write_volume_npy
     from shsas_core.signal.chain import analytic_samples, matched_filter
     from shsas_core.signal.deconv import DeconvConfig, deconvolve
 
@@ -81,13 +79,15 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     seconds = time.perf_counter() - t_start
-    paths = save_volume(volume, args.out, extra={
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_volume_npy(volume, out / "volume.npy", extra={
         "survey": str(args.survey), "signal": source, "device": str(device),
         "config": cfg.model_dump(), "pings": survey.num_pings, "seconds": round(seconds, 3)})
     mag = volume.magnitude()
     peak = np.unravel_index(int(np.argmax(mag)), grid.shape)
     centre = np.asarray(grid.box_min) + (np.asarray(peak) + 0.5) * grid.spacing
-    print(json.dumps({"out": str(paths["volume"].parent), "grid": list(grid.shape),
+    print(json.dumps({"out": str(out), "grid": list(grid.shape),
                       "signal": source, "seconds": round(seconds, 2),
                       "peak_voxel": [int(i) for i in peak], "peak_position_m": centre.round(4).tolist()}))
     return 0

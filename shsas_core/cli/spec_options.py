@@ -19,7 +19,8 @@ OPTION_NAMES: dict[str, str] = {"deconvolution": "deconv", "num_bins": "bins", "
                                 "holdout_fraction": "holdout"}
 #: Placeholders in the help for the options whose value has a name in the docs.
 _METAVARS: dict[str, str] = {"sh_degree": "L", "threshold": "TAU", "occupancy": "LEVEL",
-                             "sparsity": "WEIGHT", "angular_prior": "WEIGHT", "holdout_fraction": "FRACTION",
+                             "sparsity": "WEIGHT", "angular_prior": "WEIGHT",
+                             "tv_density": "WEIGHT", "tv_scatter": "WEIGHT", "tv_phase": "WEIGHT", "holdout_fraction": "FRACTION",
                              "average_last": "FRACTION", "normal_window": "SAMPLES",
                              "coarse_to_fine": "FRACTION"}
 #: Given for an optional field (``--occupancy none``): the field's None.
@@ -29,13 +30,6 @@ _NONE = "none"
 def option_name(field: str) -> str:
     """``--name`` of a spec field's option."""
     return "--" + OPTION_NAMES.get(field, field).replace("_", "-")
-
-
-def spec_schema() -> dict[str, dict[str, Any]]:
-    """Field name -> JSON schema of that field of :class:`ReconstructionSpec` (as the API shows it)."""
-    from shsas_core.spec.job import ReconstructionSpec
-
-    return ReconstructionSpec.model_json_schema()["properties"]
 
 
 def value_schema(prop: dict[str, Any]) -> tuple[dict[str, Any], bool]:
@@ -76,14 +70,14 @@ _TYPES: dict[str, Callable[[str], Any]] = {"integer": int, "number": float, "str
 
 def add_spec_options(p: argparse.ArgumentParser) -> None:
     """One option per :class:`~shsas_core.spec.job.ReconstructionSpec` field, plus ``--preset``."""
-    from shsas_core.spec.job import PRESETS
+    from shsas_core.spec.job import PRESETS, spec_json_schema
 
     g = p.add_argument_group("reconstruction spec (defaults: shsas_core.spec.job.ReconstructionSpec)")
     g.add_argument("--preset", choices=sorted(PRESETS), default=None,
                    help="start from a named setting: default (the best measured on a CPU) or paper "
                    "(the paper's: empty start, 200 bins x 4,800 rays, paper_gpu encoding, 50k "
                    "iterations; needs a GPU); other options override it")
-    for field, prop in spec_schema().items():
+    for field, prop in spec_json_schema()["properties"].items():
         value, nullable = value_schema(prop)
         kw: dict[str, Any] = {"default": None, "dest": field, "metavar": _METAVARS.get(field)}
         text = prop.get("description") or value.get("description") or field.replace("_", " ")
@@ -109,14 +103,15 @@ def spec_from_args(args: argparse.Namespace, **defaults: object):
     """Build and validate the spec; ``defaults`` apply where an option was not given."""
     import pydantic
 
-    from shsas_core.spec.job import PRESETS, ReconstructionSpec
+    from shsas_core.spec.job import PRESETS, ReconstructionSpec, spec_json_schema
 
     kw: dict[str, object] = dict(defaults)
+    props = spec_json_schema()["properties"]
     kw.update(PRESETS[getattr(args, "preset", None) or "default"])
     for field in ReconstructionSpec.model_fields:
         v = getattr(args, field, None)
         if v is not None:
-            kw[field] = None if v == _NONE and value_schema(spec_schema()[field])[1] else v
+            kw[field] = None if v == _NONE and value_schema(props[field])[1] else v
     if isinstance(kw.get("methods"), str):
         kw["methods"] = [m.strip() for m in str(kw["methods"]).split(",") if m.strip()]
     try:

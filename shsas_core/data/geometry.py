@@ -1,5 +1,6 @@
-"""A survey's sensor geometry as imaging sees it: height levels and elevation coverage.
+"""A survey's sensor geometry as imaging sees it: range bounds, height levels and elevation coverage.
 
+* :func:`two_way_range_bounds` bounds each ping's two-way path to the scene box;
 * :func:`height_levels` groups the pings by sensor height;
 * :func:`elevation_info` says whether the survey resolves elevation (``kind``: ``3d``,
   ``single-height`` or ``elevation-poor``) from the levels and the elevation aperture alone, so
@@ -16,7 +17,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 if TYPE_CHECKING:
-    from shsas_core.data.survey import Survey
+    from shsas_core.data.survey import SceneBox, Survey
 
 #: Pings whose TX heights differ by no more than this share a height level, m.
 LEVEL_TOLERANCE_M = 1e-3
@@ -26,6 +27,26 @@ ELEVATION_POOR_FRACTION = 0.5
 
 
 ElevationKind = Literal["3d", "single-height", "elevation-poor"]
+
+
+def two_way_range_bounds(tx: np.ndarray, rx: np.ndarray, box: SceneBox) -> tuple[np.ndarray, np.ndarray]:
+    """Per-ping shortest and longest two-way path from TX to any point of ``box`` to RX, m.
+
+    Args:
+        tx, rx: (N, 3) sensor positions, m. box: the scene box.
+    Returns:
+        r_min, r_max: (N,) m. ``r_min`` uses the box point closest to each sensor (a lower bound),
+        ``r_max`` the farthest corner (an upper bound), so every scene point lies between them.
+    """
+    lo, hi = np.asarray(box.min, dtype=np.float64), np.asarray(box.max, dtype=np.float64)
+
+    def near(p: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(p - np.clip(p, lo, hi), axis=1)
+
+    def far(p: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=1)
+
+    return near(tx) + near(rx), far(tx) + far(rx)
 
 
 @dataclasses.dataclass(frozen=True)

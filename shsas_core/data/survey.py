@@ -397,18 +397,10 @@ class Survey:
 
     def _check_scene_in_view(self) -> None:
         """At least one ping's recorded window must reach the scene box."""
-        box = self.meta.scene_box
-        lo, hi = np.asarray(box.min), np.asarray(box.max)
+        from shsas_core.data.geometry import two_way_range_bounds
+
         c, fs = self.meta.sound_speed, self.meta.fs
-        # two-way path bounds from each sensor to the box: closest point and farthest corner
-        def near(p: np.ndarray) -> np.ndarray:
-            return np.linalg.norm(p - np.clip(p, lo, hi), axis=1)
-
-        def far(p: np.ndarray) -> np.ndarray:
-            return np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=1)
-
-        r_min = near(self.tx) + near(self.rx)
-        r_max = far(self.tx) + far(self.rx)
+        r_min, r_max = two_way_range_bounds(self.tx, self.rx, self.meta.scene_box)
         w_start = c * self.t0
         w_end = c * (self.t0 + max(self.num_samples - 1, 0) / fs)
         if not np.any((r_max >= w_start) & (r_min <= w_end)):

@@ -17,18 +17,14 @@ which fuses distance, gather, interpolation and the ping sum into one loop witho
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
-import os
-from pathlib import Path
 from typing import Literal
 
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from shsas_core.common.atomic import atomic_path
 from shsas_core.common.errors import ShsasError
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progress
 from shsas_core.data.survey import SceneBox, Survey
@@ -444,29 +440,3 @@ def backproject_survey(
                          grid.points(), carrier_hz=carrier, beams=beams, config=cfg, device=device,
                          progress=progress, should_stop=should_stop)
     return Volume(grid, values.reshape(grid.shape), name="backprojection")
-
-
-def save_volume(volume: Volume, out_dir: str | os.PathLike, extra: dict | None = None) -> dict[str, Path]:
-    """Write ``volume.npy`` (complex64 values), ``magnitude.npy`` (float32) and ``grid.json``.
-
-    Files are written to a temporary name and renamed, so readers never see partial files.
-    Returns the paths by name.
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"volume": out / "volume.npy", "magnitude": out / "magnitude.npy", "grid": out / "grid.json"}
-
-    def put(path: Path, arr: np.ndarray) -> None:
-        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-            np.save(fh, arr)
-
-    put(paths["volume"], np.asarray(volume.values))
-    put(paths["magnitude"], volume.magnitude())
-    g = volume.grid
-    info = {"name": volume.name, "box_min": list(g.box_min), "box_max": list(g.box_max),
-            "shape": list(g.shape), "spacing": g.spacing.tolist(),
-            "order": "C (x slowest, z fastest); voxel (i,j,k) centre = box_min + (idx + 0.5) * spacing",
-            "dtype": str(np.asarray(volume.values).dtype), **(extra or {})}
-    with atomic_path(paths["grid"]) as tmp:
-        tmp.write_text(json.dumps(info, indent=2))
-    return paths

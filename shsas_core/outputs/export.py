@@ -143,10 +143,10 @@ def read_point_cloud_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return {name: np.array(arr[name]) for name, _ in fields}
 
 
-def write_volume_npy(volume: Volume, path: str | os.PathLike) -> dict[str, Any]:
+def write_volume_npy(volume: Volume, path: str | os.PathLike, extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Save ``volume.values`` (complex64 or float32, shape ``grid.shape``) as NPY plus a JSON
     sidecar ``<stem>.json`` with the grid (box corners in m, shape; voxel (i,j,k) has centre
-    ``box_min + (ijk + 0.5) * spacing``).
+    ``box_min + (ijk + 0.5) * spacing``) and ``extra`` (how the volume was made, say).
 
     Returns:
         ``{"path": str, "grid_path": str}``.
@@ -158,7 +158,8 @@ def write_volume_npy(volume: Volume, path: str | os.PathLike) -> dict[str, Any]:
     g = volume.grid
     info = {"box_min": list(g.box_min), "box_max": list(g.box_max), "shape": list(g.shape),
             "spacing": g.spacing.tolist(), "dtype": str(volume.values.dtype), "name": volume.name,
-            "layout": "C order, axes (x, y, z); voxel centre = box_min + (index + 0.5) * spacing"}
+            "layout": "C order, axes (x, y, z); voxel centre = box_min + (index + 0.5) * spacing",
+            **(extra or {})}
     write_json(info, side)
     return {"path": str(path), "grid_path": str(side)}
 

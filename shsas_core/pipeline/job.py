@@ -552,7 +552,9 @@ def train_config(spec: ReconstructionSpec) -> Any:
         iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
         lr_final=spec.lr_final, average_last=spec.average_last, coarse_to_fine=spec.coarse_to_fine,
         target=spec.target, pings_per_batch=spec.pings_per_batch,
-        device=spec.device, weights=LossWeights(sparsity=spec.sparsity, angular=spec.angular_prior),
+        device=spec.device,
+        weights=LossWeights(sparsity=spec.sparsity, angular=spec.angular_prior, tv_density=spec.tv_density,
+                            tv_scatter=spec.tv_scatter, tv_phase=spec.tv_phase),
         render=RenderConfig(normal_window=spec.normal_window),
         # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
         checkpoint_every=max(10, min(500, spec.iters // 10)))

@@ -84,6 +84,17 @@ class MethodCache:
             return SignalFit(z["times"], z["measured"], z["predicted"], [int(i) for i in z["pings"]])
 
 
+def _same_run(stored: Any, key: dict[str, Any]) -> bool:
+    """Whether a stored run key names the run ``key`` does. A spec field added since the key was
+    written is absent from it and counts at its default: a new field's default keeps the
+    behaviour from before the field (so adding one does not discard every job's checkpoints)."""
+    if not isinstance(stored, dict) or not isinstance(stored.get("spec"), dict):
+        return stored == key
+    defaults = ReconstructionSpec().model_dump(mode="json", exclude=set(EXTRACTION_FIELDS))
+    spec = {**{k: v for k, v in defaults.items() if k not in stored["spec"]}, **stored["spec"]}
+    return {**stored, "spec": spec} == key
+
+
 class JobCache:
     """The checkpoints folder of one job, opened for one (spec, survey).
 
@@ -100,7 +111,7 @@ class JobCache:
         key = {"spec": spec.model_dump(mode="json", exclude=set(EXTRACTION_FIELDS)),
                "survey": survey_fingerprint(survey)}
         kp = folder / "run_key.json"
-        if kp.exists() and _read_json(kp) != key:
+        if kp.exists() and not _same_run(_read_json(kp), key):
             shutil.rmtree(folder, ignore_errors=True)
         folder.mkdir(parents=True, exist_ok=True)
         if not kp.exists():

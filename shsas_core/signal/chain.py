@@ -22,6 +22,7 @@ import scipy.fft as sfft
 
 from shsas_core.common.errors import ShsasError
 from shsas_core.common.progress import StopFn, check_stop
+from shsas_core.data.geometry import two_way_range_bounds
 from shsas_core.data.survey import SceneBox, Survey, sample_times
 
 
@@ -195,23 +196,6 @@ def matched_filter(survey: Survey, signals: np.ndarray | None = None) -> np.ndar
         return correlate(s, rep)
     # corr(s_a, p_a) = 2 · analytic(corr(s, p)): halve so real and analytic input agree.
     return (0.5 * correlate(s, rep)).astype(np.complex64)
-
-
-def two_way_range_bounds(tx: np.ndarray, rx: np.ndarray, box: SceneBox) -> tuple[np.ndarray, np.ndarray]:
-    """Per-ping shortest and longest two-way path from TX to any point of ``box`` to RX, m.
-
-    The bounds are conservative: ``near(tx) + near(rx)`` <= true minimum and
-    ``far(tx) + far(rx)`` >= true maximum. Returns two (N,) arrays.
-    """
-    lo, hi = np.asarray(box.min), np.asarray(box.max)
-
-    def near(p: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(p - np.clip(p, lo, hi), axis=1)
-
-    def far(p: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=1)
-
-    return near(tx) + near(rx), far(tx) + far(rx)
 
 
 def crop_to_scene(

@@ -34,8 +34,8 @@ from shsas_core.signal.chain import analytic_samples, replica_in_frame, row_bloc
 class NeuralDeconvConfig(BaseModel):
     """Settings of the neural deconvolution network and its fit.
 
-    Defaults are CPU-friendly; :meth:`paper` gives the reference settings of the public code
-    (1000 Adam steps, lr 1e-3, 360 pings per batch, λ1 = 0.1, λ2 = 1e-4).
+    Defaults are CPU-friendly; the public code of the paper used 1000 Adam steps at lr 1e-3 per
+    batch of 360 pings, 16 levels and 2^19-row tables (λ1 = 0.1, λ2 = 1e-4 as here).
     """
 
     model_config = ConfigDict(extra="forbid")
@@ -57,11 +57,6 @@ class NeuralDeconvConfig(BaseModel):
     hidden: int = Field(32, ge=4, le=512)
     layers: int = Field(2, ge=1, le=8, description="hidden layers of the MLP")
     seed: int = Field(0, ge=0)
-
-    @classmethod
-    def paper(cls) -> NeuralDeconvConfig:
-        """Reference settings (GPU scale): 1000 steps at lr 1e-3, 360 pings, 16 levels, 2^19 table."""
-        return cls(steps=1000, lr=1e-3, pings_per_batch=360, levels=16, log2_table_size=19)
 
 
 class DeconvConfig(BaseModel):

@@ -43,6 +43,7 @@ from scipy import fft as sfft
 
 from shsas_core.common.errors import ShsasError
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop
+from shsas_core.data.geometry import two_way_range_bounds
 from shsas_core.data.pulse import lfm_pulse
 from shsas_core.data.survey import PulseParams, SceneBox, Survey, SurveyMeta
 from shsas_core.simulation.scatterers import (
@@ -130,13 +131,6 @@ class SimulationConfig(_Cfg):
 
 # -- geometry helpers -------------------------------------------------------------------------
 
-def _box_ranges(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest and farthest distance from points p (N, 3) to the box [lo, hi], m."""
-    near = np.linalg.norm(p - np.clip(p, lo, hi), axis=1)
-    far = np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=1)
-    return near, far
-
-
 def record_window(tx: np.ndarray, rx: np.ndarray, box: SceneBox, c: float, fs: float,
                   pulse_len: int, guard: int) -> tuple[np.ndarray, int]:
     """Per-ping start time and a common length that cover every echo from the scene box.
@@ -147,11 +141,9 @@ def record_window(tx: np.ndarray, rx: np.ndarray, box: SceneBox, c: float, fs: f
     Returns:
         ``(t0, T)``: (N,) float64 start times, s (multiples of 1/fs), and the samples per ping.
     """
-    lo, hi = np.asarray(box.min), np.asarray(box.max)
-    nt, ft = _box_ranges(tx, lo, hi)
-    nr, fr = _box_ranges(rx, lo, hi)
-    first = np.maximum(np.floor((nt + nr) / c * fs) - guard, 0).astype(np.int64)
-    last = np.ceil((ft + fr) / c * fs).astype(np.int64) + pulse_len + guard
+    r_min, r_max = two_way_range_bounds(tx, rx, box)
+    first = np.maximum(np.floor(r_min / c * fs) - guard, 0).astype(np.int64)
+    last = np.ceil(r_max / c * fs).astype(np.int64) + pulse_len + guard
     return first / fs, int(np.max(last - first))
 
 

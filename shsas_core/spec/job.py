@@ -7,9 +7,10 @@ own config models (``DeconvConfig``, ``BackprojectionConfig``, ``FieldConfig``, 
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic.json_schema import DEFAULT_REF_TEMPLATE
 
 from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import auto_grid_count
@@ -38,6 +39,9 @@ from shsas_core.spec.options import (
     SURFACE_HELP,
     TARGET,
     TARGET_HELP,
+    TV_DENSITY_HELP,
+    TV_PHASE_HELP,
+    TV_SCATTER_HELP,
     AngularPrior,
     AverageLast,
     CoarseToFine,
@@ -57,6 +61,7 @@ from shsas_core.spec.options import (
     SparsityWeight,
     Surface,
     Target,
+    TVWeight,
 )
 
 #: The spec fields that only change extraction: a finished job re-extracts from its saved volumes
@@ -117,6 +122,9 @@ class ReconstructionSpec(BaseModel):
         "empty space, which otherwise lowers the extraction level (docs/neural.md); 0: off, as in "
         "the paper's simulated setting")
     angular_prior: AngularPrior = Field(ANGULAR_PRIOR, description=ANGULAR_PRIOR_HELP)
+    tv_density: TVWeight = Field(0.0, description=TV_DENSITY_HELP)
+    tv_scatter: TVWeight = Field(0.0, description=TV_SCATTER_HELP)
+    tv_phase: TVWeight = Field(0.0, description=TV_PHASE_HELP)
     normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
@@ -136,6 +144,21 @@ class ReconstructionSpec(BaseModel):
         if len(set(v)) != len(v):
             raise ValueError(f"methods must not repeat: {v}")
         return v
+
+
+def spec_json_schema(ref_template: str = DEFAULT_REF_TEMPLATE) -> dict[str, Any]:
+    """:class:`ReconstructionSpec`'s JSON schema with every property's default filled in (pydantic
+    leaves out the defaults of factory-made fields such as ``methods``): the one the HTTP API
+    publishes and the console builds its form from, and the one the CLI builds its options from.
+
+    Args:
+        ref_template: how references to nested models are written (the OpenAPI document puts
+            them under ``#/components/schemas/``).
+    """
+    schema = ReconstructionSpec.model_json_schema(ref_template=ref_template)
+    for name, value in ReconstructionSpec().model_dump(mode="json").items():
+        schema["properties"][name].setdefault("default", value)
+    return schema
 
 
 #: The paper's setting (SH-SAS §5: Adam at lr 1e-3, coherent data term on ideally deconvolved

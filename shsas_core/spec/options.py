@@ -98,6 +98,17 @@ ANGULAR_PRIOR_HELP = ("weight λ6 of the angular prior on SH-SAS's scattering lo
                       "turns directional only as far as the echoes demand (docs/neural.md); 0: off, as "
                       "in the paper; no effect at L = 0 (Reed)")
 
+#: Weights λ3..λ5 of the total-variation priors on the field (shsas_core.neural.train.losses): the
+#: paper turns them on for its real AirSAS scenes, off for simulated ones.
+TVWeight = Annotated[float, Field(ge=0, le=100.0, description="weight of a total-variation prior")]
+TV_DENSITY_HELP = ("weight λ3 of the total-variation prior on the neural field's density, "
+                   "mean |ρ(x) - ρ(x+δ)| at random valid samples x, |δ| = scene-box diagonal / 128; "
+                   "0: off, as in the paper's simulated setting")
+TV_SCATTER_HELP = ("weight λ4 of the total-variation prior on the scattering magnitude, "
+                   "mean ||σ(x)| - |σ(x+δ)||; 0: off (the paper weighs it on its AirSAS scenes)")
+TV_PHASE_HELP = ("weight λ5 of the total-variation prior on the scattering phase, mean "
+                 "|e^{i∠σ(x)} - e^{i∠σ(x+δ)}|; 0: off (the paper weighs it on its AirSAS scenes)")
+
 #: Weight λ2 of the L1 sparsity prior on the field's density.
 SparsityWeight = Annotated[float, Field(ge=0, le=100.0, description="weight λ2 of the L1 sparsity prior "
                                         "on the neural field's density; 0: off")]

@@ -29,7 +29,6 @@ from shsas_core.neural.render.sampling import (
     cone_directions,
     cone_half_angles,
     sample_bins,
-    scene_range_window,
 )
 from shsas_core.neural.render.transmittance import (
     optical_depth,
@@ -41,6 +40,6 @@ __all__ = [
     "PingGeometry", "RenderConfig", "area_jacobian", "beam_axes", "bin_radii", "cone_directions",
     "cone_half_angles", "ellipsoid_frame", "intersect_focal", "intersect_quadric", "optical_depth",
     "passband_factor", "ping_geometry", "points_on_rays", "render_pings", "render_samples", "render_transients",
-    "sample_bins", "sample_ellipsoids", "scene_range_window", "signal_errors", "transmittance",
+    "sample_bins", "sample_ellipsoids", "signal_errors", "transmittance",
     "transmittance_cumprod",
 ]

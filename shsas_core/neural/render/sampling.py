@@ -25,26 +25,6 @@ def bin_radii(t0: np.ndarray, fs: float, c: float, num_samples: int) -> np.ndarr
     return c * sample_times(t0, fs, num_samples)
 
 
-def scene_range_window(tx: np.ndarray, rx: np.ndarray, box_min, box_max) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the two-way path from each ping to any point of the scene box.
-
-    Args:
-        tx, rx: (N, 3) m; box_min, box_max: (3,) m.
-    Returns:
-        r_min, r_max: (N,) m. ``r_min`` uses the closest box point to each sensor (a lower bound),
-        ``r_max`` the farthest corner (an upper bound), so every scene point lies inside.
-    """
-    lo, hi = np.asarray(box_min, dtype=np.float64), np.asarray(box_max, dtype=np.float64)
-
-    def near(p: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(p - np.clip(p, lo, hi), axis=1)
-
-    def far(p: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(np.maximum(np.abs(p - lo), np.abs(p - hi)), axis=1)
-
-    return near(tx) + near(rx), far(tx) + far(rx)
-
-
 def sample_bins(weights: Tensor, valid: Tensor, k: int, uniform_fraction: float,
                 generator: torch.Generator) -> tuple[Tensor, Tensor]:
     """Draw ``k`` distinct range bins per ping, importance-sampled by signal magnitude.

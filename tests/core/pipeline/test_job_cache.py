@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from shsas_core.outputs.report import MethodReport, SignalFit
@@ -23,6 +25,18 @@ def test_another_spec_or_survey_clears_and_a_threshold_change_keeps(tmp_path):
     JobCache(folder, spec, make_survey(seed=1))
     assert not (folder / "deconvolved.npy").exists()
     assert survey_fingerprint(survey) != survey_fingerprint(make_survey(seed=1))
+
+
+def test_a_key_written_before_a_spec_field_existed_keeps_the_checkpoints_at_its_default(tmp_path):
+    survey, spec = make_survey(), ReconstructionSpec()
+    folder = tmp_path / "checkpoints"
+    JobCache(folder, spec, survey).save_array("deconvolved", np.ones(survey.shape, np.complex64))
+    key = json.loads((folder / "run_key.json").read_text())
+    del key["spec"]["tv_phase"]  # as written before the spec had the field
+    (folder / "run_key.json").write_text(json.dumps(key))
+    assert JobCache(folder, spec, survey).array("deconvolved", survey.shape) is not None
+    JobCache(folder, spec.model_copy(update={"tv_phase": 0.5}), survey)  # not the run the key names
+    assert not (folder / "deconvolved.npy").exists()
 
 
 def test_method_cache_round_trip(tmp_path):

@@ -7,6 +7,7 @@ import pytest
 import scipy.signal
 
 from shsas_core.common.errors import ShsasError
+from shsas_core.data.geometry import two_way_range_bounds
 from shsas_core.data.survey import Survey, SurveyMeta, default_pulse
 from shsas_core.signal.chain import (
     analytic_samples,
@@ -17,7 +18,6 @@ from shsas_core.signal.chain import (
     matched_filter,
     passband,
     pulse_replica,
-    two_way_range_bounds,
 )
 from tests.conftest import circular_geometry
 from tests.helpers.echoes import delayed_pulse, point_echoes

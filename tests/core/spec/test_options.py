@@ -9,10 +9,16 @@ import typing
 
 import pytest
 
-from shsas_core.cli.spec_options import bounds_text, option_name, spec_schema, value_schema
+from shsas_core.cli.spec_options import bounds_text, option_name, value_schema
 from shsas_core.neural.render import RenderConfig
 from shsas_core.neural.train import TrainConfig
-from shsas_core.spec.job import ReconstructionSpec
+from shsas_core.spec.job import ReconstructionSpec, spec_json_schema
+
+
+def spec_schema() -> dict:
+    """Field name -> the JSON schema of that spec field (as the API and the CLI read it)."""
+    return spec_json_schema()["properties"]
+
 
 #: Spec field -> (config, its field) that the pipeline hands the value to.
 SHARED = {
@@ -58,13 +64,15 @@ def test_train_config_passes_every_spec_option():
 
     spec = ReconstructionSpec(iters=7, lr=0.5, lr_final=0.01, num_bins=5, num_rays=6, pings_per_batch=2,
                               seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5,
-                              coarse_to_fine=0.25, angular_prior=0.7)
+                              coarse_to_fine=0.25, angular_prior=0.7, tv_density=0.1, tv_scatter=0.2,
+                              tv_phase=0.3)
     cfg = train_config(spec)
     for field, (model, name) in SHARED.items():
         owner = cfg.render_config() if model is RenderConfig else cfg
         assert getattr(owner, name) == getattr(spec, field), field
     assert cfg.weights.sparsity == spec.sparsity
     assert cfg.weights.angular == spec.angular_prior
+    assert (cfg.weights.tv_density, cfg.weights.tv_scatter, cfg.weights.tv_phase) == (0.1, 0.2, 0.3)
 
 
 def test_spec_encoding_names_the_encoding_presets():
@@ -102,10 +110,10 @@ def test_every_spec_field_is_an_option_with_the_spec_bounds_and_default(command)
 def test_api_schema_is_the_spec_schema():
     """The API serves the spec's own schema (with factory defaults filled in), the one the CLI reads."""
     pytest.importorskip("fastapi")
-    from service.routes.console import spec_schema as api_schema
+    from service.routes.console import reconstruction_spec_schema
 
-    api = api_schema()["properties"]
-    assert {k: _bounds(v) for k, v in api.items()} == {k: _bounds(v) for k, v in spec_schema().items()}
+    assert reconstruction_spec_schema() == spec_json_schema()
+    assert spec_schema()["methods"]["default"] == ["backprojection", "reed", "shsas"]
 
 
 def test_cli_grid_bounds_are_the_spec_bounds(tmp_path):
