@@ -9,7 +9,12 @@ deconvolved-ping folder is imported with the default geometry. The pings used ar
 ``angle-step``-th turntable step of every ``level-step``-th level. Prints one JSON line: the
 settings, seconds per stage, the extraction threshold, Chamfer-L2 before and after alignment.
 ``--volumes DIR`` instead scores every ``*_volume.npy`` of a ``shsas reconstruct`` output
-folder (Reed, SH-SAS, backprojection) the same way. ``--pictures`` writes the MIPs, the centre slice beside the authors' reference slice, and the
+folder (Reed, SH-SAS, backprojection) the same way, with the mesh checks (pieces, area
+ratio) of each ``*_mesh.ply``. ``--scoreboard DIR`` is the real-data scoreboard: every method
+through the pipeline at the defaults (``--iters``, ``--spec-grid``, ``--methods`` override them)
+on every ``--angle-steps`` subset (default 2 and 4: 27,000 and 13,500 pings), each scored so,
+with wall times; the figures go to one JSON record under ``benchmarks/results/``.
+``--pictures`` writes the MIPs, the centre slice beside the authors' reference slice, and the
 aligned points over the mesh sample. Never asserts: figures are reported, not tested.
 """
 
@@ -36,6 +41,7 @@ from shsas_core.outputs.export import write_volume_npy
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 FOLDER = SHARED / "data" / "airsas" / "bunny_20k_deconvolved"
 MESH = SHARED / "data" / "meshes" / "bunny.obj"
+RESULTS = Path(__file__).resolve().parent / "results"
 
 
 def pictures(vol: np.ndarray, best, gt_v: np.ndarray, gt_f: np.ndarray, out: Path, tag: str) -> list[str]:
@@ -87,22 +93,76 @@ def pictures(vol: np.ndarray, best, gt_v: np.ndarray, gt_f: np.ndarray, out: Pat
     return [str(a), str(b), str(c)]
 
 
-def score_folder(folder: Path, yaw_starts: int) -> None:
-    """Aligned scores of every method's volume in a `shsas reconstruct` output folder."""
+def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
+    """Aligned scores of every method's volume in a `shsas reconstruct` output folder, and the
+    mesh checks of its ``{method}_mesh.ply`` (pieces, area over the mesh's area)."""
     import trimesh
 
     from shsas_core.data.survey import SceneBox
+    from shsas_core.evaluation.metrics import mesh_pieces
 
     mesh = trimesh.load(MESH, force="mesh")
+    rows = []
     for f in sorted(folder.glob("*_volume.npy")):
+        method = f.name[: -len("_volume.npy")]
         info = json.loads(f.with_suffix(".json").read_text())
         grid = Grid.over(SceneBox(min=tuple(info["box_min"]), max=tuple(info["box_max"])), max(info["shape"]))
         if list(grid.shape) != list(info["shape"]):
             raise SystemExit(f"{f.name}: grid {info['shape']} is not a cubic-voxel grid over its box")
         vol = Volume(grid, np.abs(np.load(f)).astype(np.float32), name=f.stem)
         scores, best = aligned_scores(vol, np.asarray(mesh.vertices), np.asarray(mesh.faces), yaw_starts=yaw_starts)
-        print(json.dumps({"volume": f.name, "grid": info["shape"], "start_yaw_deg": best.start_yaw_deg,
-                          **{k: round(v, 7) for k, v in scores.items()}}), flush=True)
+        row = {"method": method, "volume": f.name, "grid": info["shape"], "start_yaw_deg": best.start_yaw_deg,
+               **{k: round(v, 7) for k, v in scores.items()}}
+        ply = folder / f"{method}_mesh.ply"
+        if ply.is_file():
+            m = trimesh.load(ply, force="mesh", process=False)
+            row["mesh_pieces"] = mesh_pieces(np.asarray(m.vertices), np.asarray(m.faces))
+            row["mesh_area_ratio"] = round(float(m.area) / float(mesh.area), 4)
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
+def write_record(name: str, figures: dict, out_dir: Path = RESULTS) -> Path:
+    """One JSON record of a run: command, machine, load, date, commit and the figures."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                                capture_output=True, text=True).stdout.strip())
+    rec = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+           "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+                       "node": platform.node()},
+           "load_average": list(os.getloadavg()), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+           "commit": commit + ("+dirty" if dirty else ""), "figures": figures}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{name}_{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.json"
+    path.write_text(json.dumps(rec, indent=1) + "\n")
+    return path
+
+
+def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: int) -> dict:
+    """Every method through the pipeline (the defaults, but for ``overrides``) on every
+    ``angle_step``-th turntable step of every level, each scored by :func:`score_folder`."""
+    from shsas_core.pipeline.job import run as run_pipeline
+    from shsas_core.spec.job import ReconstructionSpec
+
+    spec = ReconstructionSpec(**overrides)
+    full = load_survey(FOLDER)
+    per = int(full.meta.attrs.get("pings_per_level", 360))
+    board: dict = {"spec": spec.model_dump(mode="json"), "subsets": []}
+    for step in angle_steps:
+        idx = np.arange(full.num_pings).reshape(-1, per)[:, ::step].ravel()
+        t = time.perf_counter()
+        res = run_pipeline(spec, full.subset(idx), out / f"angle_step_{step}")
+        wall = time.perf_counter() - t
+        rows = score_folder(out / f"angle_step_{step}", yaw_starts)
+        for r in rows:
+            r["seconds"] = res.metrics.get(r["method"], {}).get("seconds")
+        board["subsets"].append({"angle_step": step, "pings": len(idx), "wall_s": round(wall, 1),
+                                 "timings": res.timings, "device": res.device, "methods": rows})
+    return board
 
 
 def main() -> None:
@@ -118,12 +178,33 @@ def main() -> None:
     ap.add_argument("--save-volume", default=None, help="write |image| here (.npy + .json grid sidecar, the reconstruct volume format)")
     ap.add_argument("--volumes", default=None,
                     help="score the *_volume.npy of a `shsas reconstruct` output folder instead (one line each)")
+    ap.add_argument("--scoreboard", default=None, metavar="DIR",
+                    help="run every method at the defaults through the pipeline into DIR, on each --angle-steps "
+                    "subset, score them and write a JSON record under benchmarks/results/")
+    ap.add_argument("--angle-steps", default="2,4", help="scoreboard subsets: every k-th turntable step")
+    ap.add_argument("--methods", default=None, help="scoreboard: methods (default: all)")
+    ap.add_argument("--iters", type=int, default=None, help="scoreboard: override the default iterations")
+    ap.add_argument("--spec-grid", type=int, default=None, help="scoreboard: override the default grid")
     args = ap.parse_args()
     import torch
     import trimesh
 
     if args.volumes:
         score_folder(Path(args.volumes), args.yaw_starts)
+        return
+    if args.scoreboard:
+        overrides: dict = {}
+        if args.methods:
+            overrides["methods"] = args.methods.split(",")
+        if args.iters:
+            overrides["iters"] = args.iters
+        if args.spec_grid:
+            overrides["grid"] = args.spec_grid
+        board = scoreboard(Path(args.scoreboard), [int(k) for k in args.angle_steps.split(",")], overrides,
+                           args.yaw_starts)
+        board["overrides"] = overrides
+        board["threads"] = torch.get_num_threads()
+        print(json.dumps({"record": str(write_record("real_bunny", board))}))
         return
 
     t = time.perf_counter()

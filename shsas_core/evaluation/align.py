@@ -4,6 +4,9 @@ A real scan's object stands on the turntable in a pose nobody recorded (the AirS
 its reconstruction is scored after a rigid alignment (rotation + translation, scale fixed,
 no reflection) to the reference mesh: iterative closest point (``trimesh.registration.icp``)
 from several starts, and the start whose result has the lowest symmetric Chamfer-L2 wins.
+Scores are always after the rigid alignment; ``scale=True`` also lets ICP fit one uniform scale,
+which measures how much larger or smaller the reconstruction reads than the reference (a
+geometry check, never a score: scaling can only lower the Chamfer).
 
 Starts: the two centroids brought together, then rotations about the vertical axis through
 the predicted centroid at ``yaw_starts`` even steps (the object stands upright on the table, so
@@ -38,6 +41,20 @@ class Alignment:
     chamfer_l1: float
     start_yaw_deg: float
 
+    @property
+    def scale(self) -> float:
+        """The uniform scale in ``matrix`` (1 for a rigid alignment)."""
+        return float(np.cbrt(np.linalg.det(self.matrix[:3, :3])))
+
+    def pose(self) -> dict[str, float]:
+        """``scale``; ``yaw_deg``, ``tilt_deg`` (the angle between the turned vertical and the
+        vertical); ``shift_m`` (x, y, z): where the prediction's origin lands on the reference."""
+        r = self.matrix[:3, :3] / self.scale
+        return {"scale": self.scale, "yaw_deg": float(np.degrees(np.arctan2(r[1, 0], r[0, 0]))),
+                "tilt_deg": float(np.degrees(np.arccos(np.clip(r[2, 2], -1.0, 1.0)))),
+                "shift_x_m": float(self.matrix[0, 3]), "shift_y_m": float(self.matrix[1, 3]),
+                "shift_z_m": float(self.matrix[2, 3])}
+
 
 def _yaw(deg: float, about: np.ndarray) -> np.ndarray:
     a = np.deg2rad(deg)
@@ -51,7 +68,7 @@ def _yaw(deg: float, about: np.ndarray) -> np.ndarray:
 
 
 def align_rigid(points: np.ndarray, reference: np.ndarray, *, yaw_starts: int = 12, iterations: int = 60,
-                max_points: int = 20_000, seed: int = 0) -> Alignment:
+                max_points: int = 20_000, seed: int = 0, scale: bool = False) -> Alignment:
     """Align ``points`` rigidly (scale fixed) to the ``reference`` point set (module docstring).
 
     Args:
@@ -61,6 +78,9 @@ def align_rigid(points: np.ndarray, reference: np.ndarray, *, yaw_starts: int = 
         iterations: ICP iterations per start.
         max_points: the ICP runs on at most this many predicted points (a fixed random subset);
             the scores use all of them.
+        scale: also fit one uniform scale (:attr:`Alignment.scale`); each start is the rigid
+            alignment's result, then refined with the scale free, so the scale never has to
+            undo a wrong turn.
     """
     from trimesh.registration import icp
 
@@ -81,6 +101,9 @@ def align_rigid(points: np.ndarray, reference: np.ndarray, *, yaw_starts: int = 
         init = to_ref @ _yaw(deg, centre)
         matrix, _, _ = icp(sub, ref, initial=init, threshold=1e-9, max_iterations=iterations,
                            reflection=False, translation=True, scale=False)
+        if scale:
+            matrix, _, _ = icp(sub, ref, initial=matrix, threshold=1e-9, max_iterations=iterations,
+                               reflection=False, translation=True, scale=True)
         moved = p @ matrix[:3, :3].T + matrix[:3, 3]
         score = chamfer(moved, ref)
         if best is None or score["chamfer_l2"] < best.chamfer_l2:
@@ -90,21 +113,25 @@ def align_rigid(points: np.ndarray, reference: np.ndarray, *, yaw_starts: int = 
 
 
 def aligned_scores(volume, vertices: np.ndarray, faces: np.ndarray, *, extract_config=None,
-                   yaw_starts: int = 12, iterations: int = 60) -> tuple[dict[str, float], Alignment]:
+                   yaw_starts: int = 12, iterations: int = 60, scale: bool = False
+                   ) -> tuple[dict[str, float], Alignment]:
     """Extract ``volume``'s point cloud (the project's rule, :mod:`shsas_core.evaluation.extract`), align it
     to the mesh's surface sample (:data:`shsas_core.evaluation.metrics.GT_SAMPLES` points) and score it.
+    ``scale``: as :func:`align_rigid` (the scores are then after the scaled alignment).
 
     Returns:
-        ({"tau", "points", "chamfer_l2_raw", "chamfer_l2", "chamfer_l1"}, the alignment).
+        ({"tau", "points", "chamfer_l2_raw", "chamfer_l2", "chamfer_l1", and the F-scores of
+        :func:`~shsas_core.evaluation.metrics.point_fscores` after alignment}, the alignment).
     """
     from shsas_core.evaluation.extract import choose_threshold, point_cloud
-    from shsas_core.evaluation.metrics import sample_surface
+    from shsas_core.evaluation.metrics import point_fscores, sample_surface
 
     gt = sample_surface(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
     tau = choose_threshold(volume, extract_config)
     pc = point_cloud(volume, tau)
     if len(pc) < 3:
         raise ShsasError(f"align: the volume gives {len(pc)} points at tau {tau:.3f}")
-    best = align_rigid(pc.points, gt, yaw_starts=yaw_starts, iterations=iterations)
+    best = align_rigid(pc.points, gt, yaw_starts=yaw_starts, iterations=iterations, scale=scale)
     return ({"tau": tau, "points": float(len(pc)), "chamfer_l2_raw": chamfer(pc.points, gt)["chamfer_l2"],
-             "chamfer_l2": best.chamfer_l2, "chamfer_l1": best.chamfer_l1}, best)
+             "chamfer_l2": best.chamfer_l2, "chamfer_l1": best.chamfer_l1,
+             **point_fscores(best.points, gt)}, best)

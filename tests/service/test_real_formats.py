@@ -17,9 +17,9 @@ import pytest
 
 from shsas_core.formats import detect_format, load_survey
 from shsas_core.formats.hdf5 import read_survey, summarize
+from tests.helpers.airsas_zips import WINDOW_ROWS, cutout_zip, deconvolved_zip, need
 from tests.helpers.importer_data import AirSASScan, SVSSTrack, write_airsas_pickle
 
-from .airsas_zips import cutout_zip, deconvolved_zip
 from .conftest import start_server, submit, wait_for
 
 pytestmark = pytest.mark.service
@@ -41,11 +41,11 @@ def client(server):
         yield c
 
 
-def _accepted(client: httpx.Client, server: dict, upload: Path, fmt: str) -> dict:
+def _accepted(client: httpx.Client, server: dict, upload: Path, fmt: str, spec: dict = QUICK_SPEC) -> dict:
     """Upload ``upload``; check 202, the stored canonical file against the original's import,
     and the survey view's summary against `shsas info`'s."""
     assert detect_format(upload) == fmt
-    r = submit(client, upload, QUICK_SPEC)
+    r = submit(client, upload, spec)
     assert r.status_code == 202, r.text
     job = r.json()
     assert job["input"]["bytes"] == upload.stat().st_size
@@ -64,10 +64,11 @@ def _accepted(client: httpx.Client, server: dict, upload: Path, fmt: str) -> dic
     return job
 
 
-def _succeeds(client: httpx.Client, job: dict) -> dict:
+def _succeeds(client: httpx.Client, job: dict, methods: tuple[str, ...] = ("backprojection",)) -> dict:
     done = wait_for(client, job["id"], lambda j: j["status"] in ("succeeded", "failed"), 300, "job to end")
     assert done["status"] == "succeeded", done
-    assert {"report.json", "backprojection_volume.npy"} <= {a["name"] for a in done["artifacts"]}
+    names = {a["name"] for a in done["artifacts"]}
+    assert {"report.json", *(f"{m}_volume.npy" for m in methods), *(f"{m}_mesh.ply" for m in methods)} <= names
     return done
 
 
@@ -89,6 +90,26 @@ def test_real_deconvolved_folder_zip_is_accepted(client, server, tmp_path) -> No
     client.post(f"/reconstructions/{job['id']}/cancel")  # a full-size job; the CSV scan runs one
     summary = client.get(f"/reconstructions/{job['id']}/survey").json()["summary"]
     assert summary["pings"] == 54000 and summary["samples_per_ping"] == 608 and summary["pulse_deconvolved"]
+
+
+@pytest.mark.slow
+def test_real_deconvolved_rows_zip_runs_every_method_end_to_end(client, server, tmp_path) -> None:
+    """The first 46 turntable steps of all 150 levels of bunny_20k_deconvolved, zipped: the same
+    range window as the whole folder (so the samples keep their ranges), and every method runs
+    on it through the service (short: grid 24, 10 iterations from the empty field; the warm
+    start alone takes minutes on 6,900 pings and is tested on small surveys)."""
+    upload = deconvolved_zip(tmp_path / "bunny_rows.zip", rows=WINDOW_ROWS)
+    whole = load_survey(need("bunny_20k_deconvolved"), load_samples=False).meta
+    part = load_survey(upload, load_samples=False).meta
+    for key in ("range_min_dist_m", "range_max_dist_m"):
+        assert part.attrs[key] == pytest.approx(whole.attrs[key], rel=1e-12)
+    assert part.fs == pytest.approx(whole.fs, rel=1e-12)
+    methods = ("backprojection", "reed", "shsas")
+    job = _accepted(client, server, upload, "airsas-deconvolved",
+                    {"methods": list(methods), "grid": 24, "iters": 10, "init": "none", "device": "cpu"})
+    summary = client.get(f"/reconstructions/{job['id']}/survey").json()["summary"]
+    assert summary["pings"] == 150 * WINDOW_ROWS and summary["pulse_deconvolved"]
+    _succeeds(client, job, methods)
 
 
 def test_airsas_pickle_is_accepted(client, server, tmp_path) -> None:

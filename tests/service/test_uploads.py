@@ -16,7 +16,8 @@ import httpx
 import numpy as np
 import pytest
 
-from .airsas_zips import cutout_zip
+from tests.helpers.airsas_zips import cutout_zip
+
 from .conftest import start_server, submit, wait_for, write_tiny_survey
 
 pytestmark = pytest.mark.service

@@ -41,6 +41,22 @@ def test_a_moved_copy_is_moved_back(bunny_points):
     assert abs(np.linalg.det(big.matrix[:3, :3]) - 1) < 1e-9
 
 
+def test_scale_free_alignment_measures_the_scale(bunny_points):
+    """A copy 0.85x the size, turned and shifted: the rigid alignment cannot reach zero, the
+    scaled one does and reports the scale that undoes the shrink (1/0.85) and the turn."""
+    ref = bunny_points
+    rot = Rotation.from_euler("z", 70, degrees=True)
+    small = rot.apply(0.85 * ref) + np.array([0.01, 0.02, -0.01])
+    rigid = align_rigid(small, ref, yaw_starts=12, iterations=40)
+    assert rigid.scale == pytest.approx(1.0, abs=1e-9)
+    assert rigid.chamfer_l2 > 1e-5
+    scaled = align_rigid(small, ref, yaw_starts=12, iterations=40, scale=True)
+    assert scaled.chamfer_l2 < 1e-8
+    assert scaled.scale == pytest.approx(1 / 0.85, rel=1e-4)
+    assert scaled.pose()["yaw_deg"] == pytest.approx(-70.0, abs=0.01)
+    assert scaled.pose()["tilt_deg"] == pytest.approx(0.0, abs=0.01)
+
+
 def test_too_few_points_is_an_error():
     with pytest.raises(ShsasError, match="at least 3 points"):
         align_rigid(np.zeros((2, 3)), np.zeros((10, 3)))

@@ -3,12 +3,19 @@ the pings, still a valid scan, keeps the tests fast). The recordings are read in
 
 from __future__ import annotations
 
+import io
+import re
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 AIRSAS = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "airsas"
+#: Turntable rows per level that keep the deconvolved folder's range window: the square box's
+#: nearest and farthest corners face a sensor at 45° (and at 135°, 225°, 315°), so rows 0..45 reach
+#: the whole scan's MIN_DIST and MAX_DIST and the samples keep their ranges.
+WINDOW_ROWS = 46
 
 
 def need(name: str) -> Path:
@@ -44,14 +51,23 @@ def cutout_zip(dest: Path, flights: int = 60, background: bool = True, junk_byte
     return dest
 
 
-def deconvolved_zip(dest: Path) -> Path:
-    """``bunny_20k_deconvolved/`` whole (stored, not deflated: 63 MB of float16 barely shrinks).
+def deconvolved_zip(dest: Path, rows: int | None = None) -> Path:
+    """``bunny_20k_deconvolved/`` (stored, not deflated: float16 barely shrinks): whole, or with
+    ``rows`` the first rows (turntable steps) of every level, files renamed to tile the pings.
 
-    No subset of it is a valid scan: each level's range axis is cut from the scene box's
-    nearest and farthest corners over *all* levels, so fewer levels would map the samples to
-    other ranges (and the stored pulse to another frequency)."""
+    No subset of the *levels* is a valid scan: each level's range axis is cut from the scene
+    box's nearest and farthest corners over all levels, so fewer levels would map the samples to
+    other ranges. The first :data:`WINDOW_ROWS` rows of every level keep that window."""
     folder = need("bunny_20k_deconvolved")
     with zipfile.ZipFile(dest, "w", compression=zipfile.ZIP_STORED) as zf:
         for p in sorted(folder.iterdir()):
-            zf.write(p, f"bunny_20k_deconvolved/{p.name}")
+            m = re.match(r"^weights_trans_(\d+)_\d+\.npy$", p.name)
+            if rows is None or not m:
+                zf.write(p, f"bunny_20k_deconvolved/{p.name}")
+                continue
+            level = int(m.group(1)) // 360
+            buf = io.BytesIO()
+            np.save(buf, np.load(p)[:rows])
+            zf.writestr(f"bunny_20k_deconvolved/weights_trans_{level * rows}_{level * rows + rows - 1}.npy",
+                        buf.getvalue())
     return dest
