@@ -38,6 +38,9 @@ from shsas_core.formats import load_survey
 from shsas_core.imaging.backprojection import BackprojectionConfig, backproject_survey
 from shsas_core.outputs.export import write_volume_npy
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import records
+
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 FOLDER = SHARED / "data" / "airsas" / "bunny_20k_deconvolved"
 MESH = SHARED / "data" / "meshes" / "bunny.obj"
@@ -123,23 +126,28 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
     return rows
 
 
-def write_record(name: str, figures: dict, out_dir: Path = RESULTS) -> Path:
-    """One JSON record of a run: command, machine, load, date, commit and the figures."""
-    import subprocess
+#: The real-data scoreboard's columns (a row per method and ping subset).
+COLUMNS = [["row", "method / pings", ""], ["chamfer_l2", "aligned Chamfer-L2 (m²)", "{:.3e}"],
+           ["fscore", "F@5mm", "{:.3f}"], ["fscore_2_5mm", "F@2.5mm", "{:.3f}"],
+           ["mesh_pieces", "mesh pieces", "{:d}"], ["mesh_area_ratio", "area ratio", "{:.2f}"],
+           ["seconds", "method wall s", "{:.0f}"]]
 
-    root = Path(__file__).resolve().parents[1]
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
-    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
-                                capture_output=True, text=True).stdout.strip())
-    rec = {"command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-           "machine": {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
-                       "node": platform.node()},
-           "load_average": list(os.getloadavg()), "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-           "commit": commit + ("+dirty" if dirty else ""), "figures": figures}
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"{name}_{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.json"
-    path.write_text(json.dumps(rec, indent=1) + "\n")
-    return path
+
+def board_rows(board: dict) -> list[dict]:
+    """The scoreboard's table rows: one per method of every ping subset."""
+    return [{"row": f"{m['method']} / {sub['pings']}", **{k: m.get(k) for k, _, _ in COLUMNS[1:]}}
+            for sub in board["subsets"] for m in sub["methods"]]
+
+
+def write_board_record(board: dict, load_info: dict) -> Path:
+    """The run as a result record (benchmarks/records.py), for docs/results.md's scoreboard."""
+    steps = ",".join(str(s["angle_step"]) for s in board["subsets"])
+    rec = records.make_record(
+        "real_bunny", f"real-bunny-steps{steps}", "Real AirSAS bunny: every method at the defaults, "
+        "aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
+        COLUMNS, board_rows(board), machine_info=records.machine(), load_info=load_info,
+        notes=f"spec overrides: {board.get('overrides') or 'none'}; torch threads {board.get('threads')}")
+    return records.write_record(rec)
 
 
 def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: int) -> dict:
@@ -200,11 +208,12 @@ def main() -> None:
             overrides["iters"] = args.iters
         if args.spec_grid:
             overrides["grid"] = args.spec_grid
+        load_info = records.load()
         board = scoreboard(Path(args.scoreboard), [int(k) for k in args.angle_steps.split(",")], overrides,
                            args.yaw_starts)
         board["overrides"] = overrides
         board["threads"] = torch.get_num_threads()
-        print(json.dumps({"record": str(write_record("real_bunny", board))}))
+        print(json.dumps({"record": str(write_board_record(board, load_info))}))
         return
 
     t = time.perf_counter()
