@@ -292,15 +292,9 @@ def machine_info(device: str) -> dict[str, Any]:
     import torch
 
     from shsas_core.common.device import resolve_device
+    from shsas_core.common.machine import cpu_model
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     dev = resolve_device(device)
     info: dict[str, Any] = {"cpu": cpu, "nproc": os.cpu_count(), "torch": torch.__version__,
                             "device": str(dev), "load_avg_start": list(os.getloadavg()),

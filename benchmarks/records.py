@@ -43,11 +43,14 @@ import datetime
 import hashlib
 import json
 import os
-import platform
 import subprocess
+import sys
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from shsas_core.common.machine import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS_DIR = ROOT / "benchmarks" / "results"
@@ -55,17 +58,6 @@ SCHEMA = 1
 REQUIRED = ("schema", "benchmark", "name", "title", "command", "machine", "load", "date", "commit",
             "transcribed", "columns", "rows", "notes")
 MACHINE_KEYS = ("cpu", "cores", "gpu", "torch")
-
-
-def cpu_model() -> str:
-    """The CPU's model name from /proc/cpuinfo (the platform's processor string elsewhere)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def machine(gpu: str | None = None) -> dict[str, Any]:

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pytest
 
+from shsas_core.common.machine import cpu_model
+
 #: Recorded at commit 16691c2 (branch arch, before any issue-14 change) by this test's own job
 #: script, torch 2.13.0 CPU, once per CPU model the project's machines have had: other SIMD paths
 #: in torch or in the native hash-grid kernel give other bytes on another model. For a new model,
@@ -44,17 +46,6 @@ EXPECTED: dict[str, dict[str, str]] = {
         "shsas": "cbb8d086edb84774dc6cd3b544659ef5f2231e1986391e84c85efe529bd7c7b9",
     },
 }
-
-
-def cpu_model() -> str:
-    """The processor's model name from /proc/cpuinfo ("" where there is none)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return ""
 
 
 #: The demo's shape, SNR and default chain of methods; fewer pings, voxels and iterations.
