@@ -61,7 +61,7 @@ from shsas_core.common.errors import Cancelled, ShsasError
 from shsas_core.common.heap import heap_cache
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progress
 from shsas_core.neural.fields.base import ScatteringField, device_dtype
-from shsas_core.neural.fields.occupancy import MaskedField, OccupancyGrid
+from shsas_core.neural.fields.occupancy import OccupancyGrid, within
 from shsas_core.neural.fields.sh import angular_roughness
 from shsas_core.neural.render.renderer import (
     PingGeometry,
@@ -525,7 +525,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             of contiguous bins is convolved with it before it is compared with the data, so a thin
             surface explains a PSF-wide echo (``cfg.psf_window`` target bins per ping).
         occupancy: where the field may be non-zero (:mod:`shsas_core.neural.fields.occupancy`); the
-            field is rendered as ``MaskedField(field, occupancy)``, evaluated only there. Render
+            field is rendered as ``within(field, occupancy)``, evaluated only there. Render
             and extract the trained field through the same mask.
 
     Returns:
@@ -552,10 +552,9 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
     box = survey.meta.scene_box
     tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
     fp = _fingerprint(cfg, field, data)
-    model = field
+    model = within(field, occupancy)
     if occupancy is not None:
         occupancy.to(device)
-        model = MaskedField(field, occupancy)
         fp["occupancy"] = occupancy.digest()
     psf_t = None
     if psf is not None:
