@@ -68,6 +68,8 @@ class MethodResult:
         signal_errors: errors of the rendered held-out pings (``shsas_core.neural.render.signal_errors``).
         signal_fit: the measured and predicted signals of a few pings, drawn in the report.
         warnings: signs from the reconstruction itself that it failed (e.g. a loss that did not fall).
+        record: the method's own figures, JSON-ready, for a caller that keeps them (a neural
+            fit: ``FitResult.to_json()``, the whole loss history included).
     """
 
     volume: Volume
@@ -76,6 +78,7 @@ class MethodResult:
     signal_errors: dict[str, float] = dataclasses.field(default_factory=dict)
     signal_fit: SignalFit | None = None
     warnings: list[ResultWarning] = dataclasses.field(default_factory=list)
+    record: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 class Reconstruct(Protocol):

@@ -63,7 +63,7 @@ from shsas_core.pipeline.finish import (
 from shsas_core.pipeline.image_cache import ImageCache
 from shsas_core.pipeline.job_cache import JobCache, MethodCache
 from shsas_core.pipeline.load import load_input
-from shsas_core.signal.sources import deconv_config
+from shsas_core.signal.sources import deconv_config, signals_for
 from shsas_core.spec.catalogue import REGISTRY
 from shsas_core.spec.job import ReconstructionSpec
 
@@ -213,15 +213,15 @@ def _rewrite_json(report: Report, path: Path) -> None:
 
 def _deconvolve(survey: Survey, spec: ReconstructionSpec, device: Any, cache: JobCache,
                 progress: ProgressFn, should_stop: StopFn) -> np.ndarray:
-    from shsas_core.signal.deconv import deconvolve
-
+    """(N, T) complex64 s_PD of every ping: the spec's deconvolution (``signals_for``'s
+    ``deconvolve``), computed once per job and cached."""
     arr = cache.array("deconvolved", survey.shape)
     if arr is not None:
         progress(1.0, "deconvolution", {"cached": 1.0})
         return arr
-    s_pd = np.asarray(deconvolve(survey, deconv_config(spec), device=device, progress=progress,
-                                 should_stop=should_stop),
-                      dtype=np.complex64)
+    got = signals_for(survey, "deconvolve", deconv_config(spec), device=device, progress=progress,
+                      should_stop=should_stop)
+    s_pd = np.asarray(got.values, dtype=np.complex64)
     cache.save_array("deconvolved", s_pd)
     return s_pd
 
