@@ -1,7 +1,7 @@
 """The FastAPI application: ``create_app(settings)``; OpenAPI at /docs.
 
 Routes: POST/GET /reconstructions, GET/DELETE /reconstructions/{id}, POST .../cancel,
-GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz (docs/service.md),
+GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz, GET /methods (docs/service.md),
 and /docs (Swagger UI served from the installed ``swagger-ui-py`` package, no CDN).
 """
 
@@ -30,7 +30,7 @@ from .console import add_console
 from .deps import RETRY_AFTER_S, unavailable
 from .logs import AccessLogMiddleware
 from .redact import redact_paths
-from .routes import artifacts, bundle, health, reconstructions
+from .routes import artifacts, bundle, health, methods, reconstructions
 from .sweeper import Sweeper
 from .uploads import UploadError
 
@@ -119,6 +119,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
     app.include_router(artifacts.router)
     app.include_router(bundle.router)  # every artifact in one streamed zip
     app.include_router(health.router)
+    app.include_router(methods.router)  # the method catalogue (the console's colours)
     # The console and the routes made for it (re-extraction, survey view), kept in their modules.
     app.include_router(iso.router)
     app.include_router(survey_routes.router)

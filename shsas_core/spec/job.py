@@ -65,8 +65,8 @@ EXTRACTION_FIELDS: tuple[str, ...] = ("threshold", "surface", "mesher")
 #: The names of the method catalogue (shsas_core.spec.catalogue), as a literal so the API's schema
 #: lists them; an installed method (entry-point group ``shsas.methods``) joins it.
 Method = Literal[METHODS]  # type: ignore[valid-type]
-_METHODS_HELP = "methods to run, in order: " + "; ".join(
-    f"{m.name} ({m.label})" for m in REGISTRY.values())
+_METHODS_HELP = "methods to run, in order (the method catalogue, shsas_core.spec.catalogue): " + "; ".join(
+    f"{m.name}: {m.label}" for m in REGISTRY.values())
 
 
 class ReconstructionSpec(BaseModel):
