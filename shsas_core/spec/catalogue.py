@@ -9,7 +9,9 @@ method runs, see :mod:`shsas_core.methods`), so reading the catalogue never load
 Methods outside this package join through the ``shsas.methods`` entry-point group of any
 installed distribution: each entry point names a :class:`MethodKind` object (e.g.
 ``toy = "my_pkg.toy:KIND"``). The built-in methods come first, in the order a default job runs
-them; added ones follow in the order the entry points are listed, sorted by name.
+them; added ones follow, sorted by name, and run only when a spec names them. The catalogue is
+read while this module is first imported, so such a module imports only :class:`MethodKind` from
+here at its top and the rest inside its ``reconstruct`` (tests/helpers/toy_method.py is one).
 """
 
 from __future__ import annotations
