@@ -49,3 +49,22 @@ def test_a_job_deconvolves_as_its_spec_says() -> None:
     cfg = deconv_config(ReconstructionSpec(deconvolution="neural", seed=7))
     assert cfg.method == "neural" and cfg.neural.seed == 7
     assert json.loads(deconv_config(ReconstructionSpec()).model_dump_json())["method"] == "wiener"
+
+
+@pytest.mark.parametrize("options, label", [
+    ([], "stored extras/deconvolved"),
+    (["--deconv", "wiener"], "wiener deconvolution"),
+    (["--signal", "matched"], "matched filter"),
+    (["--deconv", "none"], "raw (analytic)"),
+])
+def test_shsas_backproject_names_the_signals_it_imaged(tmp_path, capsys, options, label) -> None:
+    from shsas_core.cli import main
+    from shsas_core.formats.hdf5 import write_survey
+
+    survey = make_survey()
+    survey.extras["deconvolved"] = deconvolve(survey)
+    path = write_survey(survey, tmp_path / "s.h5")
+    rc = main(["backproject", str(path), "--grid", "8", "--device", "cpu", "--backend", "eager", "--quiet",
+               "--out", str(tmp_path / "bp"), *options])
+    assert rc == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["signal"] == label
