@@ -60,8 +60,8 @@ def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> l
     from shsas_core.evaluation.extract import ExtractConfig, extract
     from shsas_core.evaluation.metrics import GroundTruth, fscore, mesh_quality, sample_surface
     from shsas_core.imaging.backprojection import backproject_survey
-    from shsas_core.pipeline.job import deconv_config
     from shsas_core.signal.deconv import deconvolve
+    from shsas_core.signal.sources import deconv_config
     from shsas_core.simulation.simulate import simulate_shape
     from shsas_core.spec.job import ReconstructionSpec
 

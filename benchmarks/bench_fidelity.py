@@ -109,6 +109,7 @@ from shsas_core.simulation.simulate import (  # noqa: E402
     config_summary,
 )
 from shsas_core.simulation.trajectory import azimuth_arc_indices  # noqa: E402
+from shsas_core.spec.catalogue import LABELS  # noqa: E402
 from shsas_core.spec.job import METHODS, PAPER_SETTINGS, ReconstructionSpec  # noqa: E402
 
 #: The paper's row: the spec's own preset (declared once in shsas_core.spec.job).
@@ -164,7 +165,8 @@ COLUMNS: tuple[tuple[str, str, str, bool], ...] = (
     ("mesh_normal_consistency", "mesh normal cons. ↑", "{:.3f}", True),
     ("seconds", "wall s ↓", "{:.0f}", False),
 )
-LABEL = {"backprojection": "backprojection", "reed": "Reed (L=0)", "shsas": "SH-SAS (L=3)"}
+#: Each method's name in the tables: the method catalogue's label.
+LABEL = LABELS
 #: Spec fields the benchmark sets per run; they do not make a stored result stale.
 RUN_FIELDS = {"methods", "seed", "device"}
 

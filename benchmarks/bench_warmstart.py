@@ -66,14 +66,15 @@ def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 
     from shsas_core.evaluation.extract import extract
     from shsas_core.evaluation.metrics import GroundTruth, score_points
     from shsas_core.imaging.backprojection import backproject_survey
+    from shsas_core.methods.neural import train_config
     from shsas_core.neural.fields import SHField, encoding_preset
     from shsas_core.neural.fields.config import FieldConfig
-    from shsas_core.neural.fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
+    from shsas_core.neural.fields.occupancy import OccupancyConfig, OccupancyGrid, within
     from shsas_core.neural.fields.volume import field_volume
     from shsas_core.neural.train import coarse_start_levels, fit
     from shsas_core.neural.warmstart import WarmStartConfig, distill
-    from shsas_core.pipeline.job import deconv_config, train_config
     from shsas_core.signal.deconv import deconvolve, point_spread
+    from shsas_core.signal.sources import deconv_config
     from shsas_core.simulation.simulate import simulate_shape
     from shsas_core.spec.job import ReconstructionSpec
 
@@ -98,7 +99,7 @@ def warm_start_case(source: str, seed: int = 0, heights: int = 6, angles: int = 
     distill(field, image, WarmStartConfig(seed=spec.seed))
     assert spec.occupancy is not None
     occupancy = OccupancyGrid.from_volume(image, OccupancyConfig(level=spec.occupancy))
-    model = MaskedField(field, occupancy)
+    model = within(field, occupancy)
     start = score(field_volume(model, vox))
     result = fit(field, survey, s_pd, train_config(spec), psf=point_spread(survey, deconv_config(spec)),
                  occupancy=occupancy)

@@ -33,6 +33,7 @@ sys.path.insert(0, str(ROOT))
 from shsas_core.pipeline.job import run  # noqa: E402
 from shsas_core.simulation.simulate import simulate_shape  # noqa: E402
 from shsas_core.simulation.trajectory import TrajectoryConfig  # noqa: E402
+from shsas_core.spec.catalogue import LABELS  # noqa: E402
 from shsas_core.spec.job import ReconstructionSpec  # noqa: E402
 
 #: The columns (metric key, header, format): the primary surface F1 first, the paper code's
@@ -42,7 +43,8 @@ METRICS = [("surface_f1", "surface F1 ↑", "{:.3f}"), ("fscore", "F@5mm ↑", "
            ("chamfer_l2", "Chamfer-L2 (m²) ↓", "{:.3e}"), ("chamfer_l1", "Chamfer-L1 (m) ↓", "{:.3e}"),
            ("solid_f1", "solid F1 (paper code) ↑", "{:.3f}"), ("pieces", "pieces ↓", "{:.0f}"),
            ("area_ratio", "area ratio", "{:.2f}"), ("normal_consistency", "normal cons. ↑", "{:.3f}")]
-LABEL = {"backprojection": "Backprojection", "reed": "Reed et al. (L=0)", "shsas": "SH-SAS"}
+#: Each method's name in the tables: the method catalogue's label.
+LABEL = LABELS
 
 
 def shared_mesh(name: str) -> str | None:

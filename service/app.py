@@ -1,7 +1,7 @@
 """The FastAPI application: ``create_app(settings)``; OpenAPI at /docs.
 
 Routes: POST/GET /reconstructions, GET/DELETE /reconstructions/{id}, POST .../cancel,
-GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz (docs/service.md),
+GET .../artifacts and GET/HEAD .../artifacts/{name}, GET/HEAD /healthz and /readyz, GET /methods (docs/service.md),
 and /docs (Swagger UI served from the installed ``swagger-ui-py`` package, no CDN).
 """
 
@@ -35,6 +35,7 @@ from .routes import (
     extracts,
     health,
     joblog,
+    methods,
     presets,
     reconstructions,
     surveys,
@@ -129,6 +130,7 @@ def create_app(settings: Settings | None = None, *, reconcile: bool = True) -> F
     app.include_router(joblog.router)  # the job's own log lines
     app.include_router(presets.router)  # presets and the cost estimate, before an upload
     app.include_router(health.router)
+    app.include_router(methods.router)  # the method catalogue (the console's colours)
     # The console and the routes made for it (re-extraction, survey view), kept in their modules.
     app.include_router(extracts.router)
     app.include_router(surveys.router)

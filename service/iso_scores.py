@@ -1,4 +1,4 @@
-"""The scores of a re-extraction (``service.iso``) against the survey's ground truth, when it has
+"""The scores of a re-extraction (``service.routes.extracts``) against the survey's ground truth, when it has
 one: the same metrics the job's report gives (``shsas_core.evaluation.metrics.score_reconstruction``:
 ``pc_*`` for the cloud, ``mesh_*`` for the mesh), so the console's metrics table follows the
 iso level. Without ground truth only the mesh's pieces (they need none).

@@ -51,8 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from shsas_core.formats import load_survey
     from shsas_core.imaging.backprojection import BackprojectionConfig, backproject_survey
     from shsas_core.outputs.export import write_volume_npy
-    from shsas_core.signal.chain import analytic_samples, matched_filter
-    from shsas_core.signal.deconv import DeconvConfig, deconvolve
+    from shsas_core.signal.deconv import DeconvConfig
+    from shsas_core.signal.sources import signals_for
 
     _check_grid(args.grid)
     if not 1 <= args.upsample <= 32:
@@ -63,15 +63,14 @@ def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     try:
         if args.signal == "matched":
-            signals, source = matched_filter(survey), "matched filter"
+            source = "matched"
         elif args.signal == "raw" or args.deconv == "none":
-            signals, source = analytic_samples(survey), "raw (analytic)"
-        elif args.deconv is None and "deconvolved" in survey.extras:
-            signals, source = survey.extras["deconvolved"].astype(np.complex64), "stored extras/deconvolved"
-        else:
-            method = args.deconv or "wiener"
-            signals = deconvolve(survey, DeconvConfig(method=method), device=device, progress=progress)
-            source = f"{method} deconvolution"
+            source = "raw"
+        else:  # the stored signals unless a deconvolution is named
+            source = "auto" if args.deconv is None else "deconvolve"
+        got = signals_for(survey, source, DeconvConfig(method=args.deconv or "wiener"), device=device,
+                          progress=progress)
+        signals, source = got.values, got.label
         grid = Grid.over(survey.meta.scene_box, args.grid)
         cfg = BackprojectionConfig(interpolation=args.interpolation, upsample=args.upsample,
                                    use_beams=not args.no_beams, backend=args.backend)

@@ -68,8 +68,10 @@ def _number_or_text(kind: Callable[[str], Any]) -> Callable[[str], Any]:
 _TYPES: dict[str, Callable[[str], Any]] = {"integer": int, "number": float, "string": str}
 
 
-def add_spec_options(p: argparse.ArgumentParser) -> None:
-    """One option per :class:`~shsas_core.spec.job.ReconstructionSpec` field, plus ``--preset``."""
+def add_spec_options(p: argparse.ArgumentParser, exclude: frozenset[str] = frozenset()) -> None:
+    """One option per :class:`~shsas_core.spec.job.ReconstructionSpec` field (those in ``exclude``
+    aside), plus ``--preset``."""
+    from shsas_core.spec.catalogue import DEFAULT_METHODS
     from shsas_core.spec.job import PRESETS, spec_json_schema
 
     g = p.add_argument_group("reconstruction spec (defaults: shsas_core.spec.job.ReconstructionSpec)")
@@ -78,12 +80,14 @@ def add_spec_options(p: argparse.ArgumentParser) -> None:
                    "(the paper's: empty start, 200 bins x 4,800 rays, paper_gpu encoding, 50k "
                    "iterations; needs a GPU); other options override it")
     for field, prop in spec_json_schema()["properties"].items():
+        if field in exclude:
+            continue
         value, nullable = value_schema(prop)
         kw: dict[str, Any] = {"default": None, "dest": field, "metavar": _METAVARS.get(field)}
         text = prop.get("description") or value.get("description") or field.replace("_", " ")
         if value.get("type") == "array":  # methods: a comma-separated list of the allowed names
             names = ", ".join(value["items"]["enum"])
-            text = f"{text}; comma-separated from {names} (default: all three)"
+            text = f"{text}; comma-separated from {names} (default: {','.join(DEFAULT_METHODS)})"
         else:
             if "enum" in value:
                 kw["choices"] = value["enum"]

@@ -457,9 +457,9 @@ def autofocus(survey: Survey, signals: np.ndarray | None = None, config: Autofoc
     if survey.samples is None:
         raise ShsasError("autofocus: the survey's samples were not loaded")
     if signals is None:
-        from shsas_core.signal.deconv import deconvolve
+        from shsas_core.signal.sources import signals_for
 
-        signals = deconvolve(survey)
+        signals = signals_for(survey, "deconvolve").values
     signals = np.asarray(signals)
     levels = height_levels(survey.tx)
     elev = elevation_info(survey)

@@ -382,16 +382,16 @@ def backproject(
 
 
 def default_signals(survey: Survey) -> tuple[np.ndarray, str]:
-    """Signals to image when none are given: ``extras["deconvolved"]``, else the matched filter.
+    """Signals to image when none are given (:func:`~shsas_core.signal.sources.signals_for`'s
+    ``stored`` when the survey has them, else ``matched``).
 
-    Returns ((N, T) complex64, name of the choice).
+    Returns ((N, T) complex, "deconvolved" or "matched").
     """
-    ex = survey.extras.get("deconvolved")
-    if ex is not None and ex.shape == survey.shape:
-        return ex.astype(np.complex64), "deconvolved"
-    from shsas_core.signal.chain import matched_filter
+    from shsas_core.signal.sources import has_stored, signals_for
 
-    return matched_filter(survey), "matched"
+    if has_stored(survey):
+        return signals_for(survey, "stored").values, "deconvolved"
+    return signals_for(survey, "matched").values, "matched"
 
 
 def backproject_survey(

@@ -14,7 +14,7 @@ from pydantic.json_schema import DEFAULT_REF_TEMPLATE
 
 from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import auto_grid_count
-from shsas_core.spec.catalogue import REGISTRY
+from shsas_core.spec.catalogue import DEFAULT_METHODS, METHODS, REGISTRY
 from shsas_core.spec.options import (
     ANGULAR_PRIOR,
     ANGULAR_PRIOR_HELP,
@@ -67,10 +67,11 @@ from shsas_core.spec.options import (
 #: The spec fields that only change extraction: a finished job re-extracts from its saved volumes
 #: when they change (shsas_core.pipeline.job_cache) instead of reconstructing again.
 EXTRACTION_FIELDS: tuple[str, ...] = ("threshold", "surface", "mesher")
-#: The names of shsas_core.spec.catalogue.REGISTRY (a literal, so the API's schema lists them; a test
-#: checks the two agree).
-Method = Literal["backprojection", "reed", "shsas"]
-METHODS: tuple[str, ...] = tuple(REGISTRY)
+#: The names of the method catalogue (shsas_core.spec.catalogue), as a literal so the API's schema
+#: lists them; an installed method (entry-point group ``shsas.methods``) joins it.
+Method = Literal[METHODS]  # type: ignore[valid-type]
+_METHODS_HELP = "methods to run, in order (the method catalogue, shsas_core.spec.catalogue): " + "; ".join(
+    f"{m.name}: {m.label}" for m in REGISTRY.values())
 
 
 class ReconstructionSpec(BaseModel):
@@ -78,10 +79,8 @@ class ReconstructionSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    methods: list[Method] = Field(default_factory=lambda: list(METHODS),
-                                  min_length=1, max_length=3, description="methods to run, in order: "
-                                  "backprojection, reed (isotropic neural field, SH degree 0), shsas "
-                                  "(SH degree sh_degree)")
+    methods: list[Method] = Field(default_factory=lambda: list(DEFAULT_METHODS),
+                                  min_length=1, max_length=len(METHODS), description=_METHODS_HELP)
     # the options the components share take their bounds and defaults from shsas_core.spec.options
     sh_degree: SHDegree = Field(SH_DEGREE, description="SH degree L for method 'shsas' (reed is L=0)")
     iters: Iters = ITERS

@@ -7,8 +7,17 @@ import * as THREE from "three";
 import { OrbitControls } from "three/examples/jsm/controls/OrbitControls.js";
 import { GLTFLoader } from "three/examples/jsm/loaders/GLTFLoader.js";
 import { PLYLoader } from "three/examples/jsm/loaders/PLYLoader.js";
+import { api } from "./api.js";
 
-const COLOURS = { backprojection: 0x4f9de0, reed: 0xe0a34f, shsas: 0x6fd08c, ground_truth: 0xd0d0d0 };
+const GROUND_TRUTH = 0xd0d0d0;
+// each method's colour is the method catalogue's (GET /methods), fetched once
+let methodColours = null;
+function coloursOf() {
+  methodColours ??= api("/methods")
+    .then((ms) => Object.fromEntries(ms.map((m) => [m.name, parseInt(m.colour.slice(1), 16)])))
+    .catch(() => ({}));
+  return methodColours;
+}
 
 // viridis at 5 stops: scalars in [τ, 1] read as a familiar dark-to-bright scale
 const VIRIDIS = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]];
@@ -160,8 +169,8 @@ export class Viewer {
   async addMesh(name, buffer, offset, colourKey) {
     const gltf = await new GLTFLoader().parseAsync(buffer, "");
     const group = new THREE.Group();
-    const colour = COLOURS[colourKey] ?? 0xcccccc;
     const gt = colourKey === "ground_truth";
+    const colour = gt ? GROUND_TRUTH : (await coloursOf())[colourKey] ?? 0xcccccc;
     gltf.scene.traverse((o) => {
       if (o.isMesh) {
         o.material = new THREE.MeshStandardMaterial({

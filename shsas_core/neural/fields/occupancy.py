@@ -142,3 +142,10 @@ class MaskedField(torch.nn.Module):
         """Complex SH coefficients (P, (L+1)^2), zero outside the mask."""
         keep = torch.nonzero(self.occupancy.lookup(x), as_tuple=False)[:, 0]
         return _scatter(self.field.coefficients(x[keep]), keep, x.shape[0])
+
+
+def within(field: torch.nn.Module, occupancy: OccupancyGrid | None) -> torch.nn.Module:
+    """The model that is trained, rendered and extracted: ``field`` inside ``occupancy``'s mask
+    (:class:`MaskedField`), or ``field`` itself when there is no mask. The one place the mask is
+    put on a field."""
+    return field if occupancy is None else MaskedField(field, occupancy)

@@ -18,7 +18,7 @@ from shsas_core.common.errors import Cancelled, ShsasError
 from shsas_core.common.heap import heap_cache
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progress
 from shsas_core.neural.fields.base import device_dtype
-from shsas_core.neural.fields.occupancy import MaskedField, OccupancyGrid
+from shsas_core.neural.fields.occupancy import OccupancyGrid, within
 from shsas_core.neural.train.checkpoint import (
     CHECKPOINT_NAME,
     comparable,
@@ -101,11 +101,10 @@ class Trainer:
         box = self.survey.meta.scene_box
         self.tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
         self.fingerprint = fingerprint(cfg, field, self.data)
-        self.model = field
         if self.occupancy is not None:
             self.occupancy.to(device)
-            self.model = MaskedField(field, self.occupancy)
             self.fingerprint["occupancy"] = self.occupancy.digest()
+        self.model = within(field, self.occupancy)
         self.psf: torch.Tensor | None = None
         if self.psf_kernel is not None:
             k = np.asarray(self.psf_kernel, dtype=np.complex128).ravel()
@@ -238,7 +237,7 @@ def fit(field: torch.nn.Module, survey, signals: np.ndarray, config: TrainConfig
             of contiguous bins is convolved with it before it is compared with the data, so a thin
             surface explains a PSF-wide echo (``cfg.psf_window`` target bins per ping).
         occupancy: where the field may be non-zero (:mod:`shsas_core.neural.fields.occupancy`); the
-            field is rendered as ``MaskedField(field, occupancy)``, evaluated only there. Render
+            field is rendered as ``within(field, occupancy)``, evaluated only there. Render
             and extract the trained field through the same mask.
 
     Returns:

@@ -23,8 +23,8 @@ from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import Grid, auto_grid_count
 from shsas_core.evaluation.extract import extract, point_cloud
 from shsas_core.imaging.backprojection import backproject_survey
-from shsas_core.pipeline.job import deconv_config
 from shsas_core.signal.deconv import deconvolve
+from shsas_core.signal.sources import deconv_config
 from shsas_core.simulation.shapes import load_mesh
 from shsas_core.simulation.simulate import simulate_shape
 from shsas_core.spec.job import ReconstructionSpec

@@ -258,6 +258,8 @@ def test_progressive_sh_masks_higher_degrees(small):
 
 
 def test_cli_fit_writes_outputs_and_resumes(small, tmp_path):
+    """`shsas fit` takes the spec's options and signals (the spec's deconvolution, not the stored
+    extras), keeps the field and resumes a longer run from its checkpoint."""
     from shsas_core.cli import main
     from shsas_core.formats.hdf5 import write_survey
 
@@ -266,17 +268,22 @@ def test_cli_fit_writes_outputs_and_resumes(small, tmp_path):
     path = write_survey(survey, tmp_path / "s.h5")
     out = tmp_path / "run"
     argv = ["fit", str(path), "--method", "reed", "--iters", "3", "--device", "cpu", "--out", str(out),
-            "--bins", "4", "--rays", "8", "--no-progress", "--checkpoint-every", "2"]
+            "--bins", "4", "--rays", "8", "--grid", "8", "--no-progress"]
     assert main(argv) == 0
     hist = json.loads((out / "loss_history.json").read_text())
-    assert hist["sh_degree"] == 0 and len(hist["loss_history"]) == 3 and hist["signals"].startswith("deconvolved")
+    assert hist["sh_degree"] == 0 and len(hist["loss_history"]) == 3
+    assert hist["signals"] == "wiener deconvolution" and hist["spec"]["num_bins"] == 4
     saved = torch.load(out / "field.pt", weights_only=False)
     assert saved["field_config"]["sh_degree"] == 0 and "state_dict" in saved
+    assert (out / "checkpoint.pt").exists() and (out / "reed_volume.npy").exists()
     argv[argv.index("--iters") + 1] = "5"
     assert main(argv) == 0
     hist2 = json.loads((out / "loss_history.json").read_text())
     assert hist2["start_iteration"] == 3 and hist2["loss_history"][:3] == hist["loss_history"]
     assert main(["fit", str(tmp_path / "missing.h5"), "--out", str(out)]) == 2
+    with pytest.raises(SystemExit) as refused:  # argparse: a method that fits no field
+        main(["fit", str(path), "--method", "backprojection", "--out", str(out)])
+    assert refused.value.code == 2
 
 
 @pytest.mark.slow

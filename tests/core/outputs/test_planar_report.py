@@ -12,8 +12,8 @@ import pytest
 from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import Grid, Volume
 from shsas_core.formats.hdf5 import summarize
+from shsas_core.outputs.focus import add_focus
 from shsas_core.outputs.report import Report, ReportFigures, render_html
-from shsas_core.pipeline.job import _add_focus
 from shsas_core.signal.deconv import deconvolve
 from shsas_core.spec.job import ReconstructionSpec
 from tests.helpers.focus_scenes import BOX, PLANE_Z, plane_scene
@@ -33,7 +33,7 @@ def scene():
 def _render(survey, signals) -> tuple[str, dict]:
     summary = summarize(survey)
     figs = ReportFigures(volumes={"backprojection": _volume(survey.meta.scene_box)})
-    _add_focus(summary, figs, survey, signals)
+    add_focus(summary, figs, survey, signals)
     rep = Report(spec=ReconstructionSpec(methods=["backprojection"]), survey=summary, ground_truth=False)
     return render_html(rep, figs), summary
 
@@ -78,7 +78,7 @@ def test_3d_report_keeps_the_projections(scene):
     summary = summarize(s)
     assert summary["elevation"]["kind"] == "3d"
     figs = ReportFigures(volumes={"backprojection": _volume(s.meta.scene_box)})
-    _add_focus(summary, figs, s, np.zeros(s.shape, dtype=np.complex64))
+    add_focus(summary, figs, s, np.zeros(s.shape, dtype=np.complex64))
     assert "focus" not in summary["elevation"]
     page = render_html(Report(spec=ReconstructionSpec(methods=["backprojection"]), survey=summary,
                               ground_truth=False), figs)

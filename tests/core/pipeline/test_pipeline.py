@@ -164,9 +164,9 @@ def test_neural_methods_end_to_end_with_holdout_and_resume(tmp_path, sphere_surv
 
 
 def test_spec_maps_onto_trainer_and_encoding():
+    from shsas_core.methods.neural import train_config
     from shsas_core.neural.fields import PAPER_GPU_ENCODING
     from shsas_core.neural.fields import encoding_preset as encoding_config
-    from shsas_core.pipeline.job import train_config
 
     spec = ReconstructionSpec(iters=250, lr=0.02, num_bins=7, num_rays=9, pings_per_batch=3, seed=5)
     cfg = train_config(spec)
@@ -179,7 +179,7 @@ def test_spec_maps_onto_trainer_and_encoding():
 
 
 def test_spec_target_reaches_the_trainer():
-    from shsas_core.pipeline.job import train_config
+    from shsas_core.methods.neural import train_config
 
     assert ReconstructionSpec().target == "coherent"
     assert train_config(ReconstructionSpec()).target == "coherent"

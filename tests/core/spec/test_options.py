@@ -60,7 +60,7 @@ def test_a_render_setting_trainconfig_owns_is_an_error_not_dropped():
 
 
 def test_train_config_passes_every_spec_option():
-    from shsas_core.pipeline.job import train_config
+    from shsas_core.methods.neural import train_config
 
     spec = ReconstructionSpec(iters=7, lr=0.5, lr_final=0.01, num_bins=5, num_rays=6, pings_per_batch=2,
                               seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5,
@@ -126,14 +126,13 @@ def test_cli_grid_bounds_are_the_spec_bounds(tmp_path):
 
 
 def test_the_spec_methods_are_the_registry():
-    from shsas_core.pipeline.job import sh_degree_of
-    from shsas_core.spec.catalogue import NEURAL, REGISTRY
+    from shsas_core.spec.catalogue import DEFAULT_METHODS, NEURAL, REGISTRY
     from shsas_core.spec.job import METHODS, Method
 
-    assert typing.get_args(Method) == tuple(REGISTRY) == METHODS == tuple(ReconstructionSpec().methods)
-    spec = ReconstructionSpec(sh_degree=2)
-    assert [sh_degree_of(m, spec) for m in METHODS] == [None, 0, 2]
-    assert NEURAL == ("reed", "shsas")
+    assert typing.get_args(Method) == tuple(REGISTRY) == METHODS
+    assert tuple(ReconstructionSpec().methods) == DEFAULT_METHODS == ("backprojection", "reed", "shsas")
+    assert [REGISTRY[m].sh_degree(2) for m in DEFAULT_METHODS] == [None, 0, 2]
+    assert NEURAL[:2] == ("reed", "shsas")
 
 
 def test_building_the_cli_does_not_import_torch():
