@@ -39,10 +39,12 @@ import bench_fidelity as fid
 import records
 
 #: The scoreboard's names of the two extractions.
-LABELS = {"old": "paper (Otsu + marching cubes)", "new": "default (ridge + Poisson)"}
+LABELS = {"old": "paper (Otsu + marching cubes)", "fine-n": "default, normals at the ridge's smoothing",
+          "new": "default (ridge + Poisson)"}
 COLUMNS = (("extraction", "extraction", ""), ("tau", "τ (Otsu)", "{:.3f}"), ("points", "points", "{:,.0f}"),
            ("faces", "faces", "{:,.0f}"), ("pieces", "pieces (95 % area)", "{:.0f}"),
-           ("area", "area / GT", "{:.2f}"), ("f5_cloud", "F@5mm cloud", "{:.3f}"),
+           ("area", "area / GT", "{:.2f}"), ("nc", "normal consistency", "{:.3f}"),
+           ("f5_cloud", "F@5mm cloud", "{:.3f}"),
            ("f5_mesh", "F@5mm mesh", "{:.3f}"), ("seconds", "s", "{:.1f}"))
 
 

@@ -463,24 +463,6 @@ def test_psf_forward_model_explains_band_limited_echoes_better(small):
     assert losses["psf"] < losses["impulse"], losses
 
 
-def test_fit_analytic_signals_are_the_surveys_analytic_samples() -> None:
-    # `shsas fit --signals analytic` reads the samples as complex through signal.analytic_samples
-    # (one definition, with its signal_kind checks) and matches scipy's Hilbert transform
-    import scipy.signal
-
-    from shsas_core.cli.fit import _signals
-    from tests.conftest import make_survey
-
-    real = make_survey()
-    sig, label = _signals(real, "analytic", "cpu")
-    assert label == "analytic" and sig.dtype == np.complex64
-    ref = scipy.signal.hilbert(real.samples.astype(np.float64), axis=1)
-    assert np.abs(sig - ref).max() <= 1e-5 * np.abs(ref).max()
-    cplx = make_survey(complex_=True)
-    sig, label = _signals(cplx, "analytic", "cpu")
-    assert label == "samples (complex)" and np.array_equal(sig, cplx.samples)
-
-
 def test_tail_average_is_the_mean_of_the_last_iterates_and_resumes_exactly(small, tmp_path):
     survey, sig = small
     snapshots: list[list[torch.Tensor]] = []

@@ -68,3 +68,21 @@ def test_shsas_backproject_names_the_signals_it_imaged(tmp_path, capsys, options
                "--out", str(tmp_path / "bp"), *options])
     assert rc == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["signal"] == label
+
+
+def test_raw_signals_are_the_surveys_analytic_samples() -> None:
+    # the "raw" source reads the samples as complex through signal.chain.analytic_samples (one
+    # definition, with its signal_kind checks) and matches scipy's Hilbert transform
+    import scipy.signal
+
+    from shsas_core.signal.sources import signals_for
+    from tests.conftest import make_survey
+
+    real = make_survey()
+    got = signals_for(real, "raw")
+    assert got.label == "raw (analytic)" and np.iscomplexobj(got.values)
+    ref = scipy.signal.hilbert(real.samples.astype(np.float64), axis=1)
+    assert np.abs(got.values - ref).max() <= 1e-5 * np.abs(ref).max()
+    cplx = make_survey(complex_=True)
+    assert np.array_equal(signals_for(cplx, "raw").values, cplx.samples)
+
