@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import os
+import resource
+import time
+from collections.abc import Generator
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import pytest
@@ -22,6 +27,55 @@ def device(request: pytest.FixtureRequest) -> torch.device:
     if name.startswith("cuda") and not torch.cuda.is_available():
         pytest.skip("CUDA not available")
     return torch.device(name)
+
+
+_CPU_REPORT_ENV = "SHSAS_TEST_CPU_REPORT"
+_cpu_report: IO[str] | None = None
+
+
+def _cpu_seconds() -> tuple[float, float]:
+    """(this process's CPU s, reaped children's user+system CPU s)."""
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time(), ch.ru_utime + ch.ru_stime
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    global _cpu_report
+    path = os.environ.get(_CPU_REPORT_ENV)
+    if path:
+        # one JSON line per test, flushed as it finishes, so a partial run is still readable
+        _cpu_report = open(path, "w", encoding="utf-8")
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    global _cpu_report
+    if _cpu_report is not None:
+        _cpu_report.close()
+        _cpu_report = None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> Generator[None, None, None]:
+    """Per test (setup + call + teardown): CPU seconds here and in reaped children, and wall seconds.
+
+    Children's CPU counts only once they are waited for, so a server started by a module fixture
+    shows up on the test whose teardown stops it.
+    """
+    if _cpu_report is None:
+        yield
+        return
+    cpu0, ch0 = _cpu_seconds()
+    wall0 = time.perf_counter()
+    yield
+    cpu1, ch1 = _cpu_seconds()
+    rec = {
+        "test": item.nodeid,
+        "cpu_s": round(cpu1 - cpu0, 3),
+        "children_cpu_s": round(ch1 - ch0, 3),
+        "wall_s": round(time.perf_counter() - wall0, 3),
+    }
+    _cpu_report.write(json.dumps(rec) + "\n")
+    _cpu_report.flush()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
