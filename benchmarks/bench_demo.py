@@ -24,9 +24,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import records
 
+sys.path.insert(0, str(records.ROOT))
+from shsas_core.spec.catalogue import LABELS
+
 ROOT = records.ROOT
 DEFAULT_MESH = ROOT.parent / "shared" / "data" / "meshes" / "bunny.obj"
-LABEL = {"backprojection": "backprojection", "reed": "Reed (L=0)", "shsas": "SH-SAS (L=3)"}
 COLUMNS = (("method", "method", ""),
            ("mesh_surface_f1", "surface F1 mesh", "{:.3f}"), ("pc_surface_f1", "surface F1 cloud", "{:.3f}"),
            ("mesh_fscore", "F@5mm mesh", "{:.3f}"), ("pc_fscore", "F@5mm cloud", "{:.3f}"),
@@ -41,7 +43,7 @@ def rows_from_report(report: dict) -> list[dict[str, float | str | None]]:
     rows = []
     for m in report["methods"]:
         metrics = m.get("metrics", {})
-        rows.append({"method": LABEL.get(m["method"], m["method"]),
+        rows.append({"method": LABELS.get(m["method"], m["method"]),
                      **{k: metrics.get(k) for k, _, _ in COLUMNS[1:]}})
     return rows
 

@@ -105,12 +105,16 @@ def test_bad_input_exits_2_with_one_line(argv, needle, capsys, tmp_path, monkeyp
     assert len(err.splitlines()) == 1 and needle in err and "Traceback" not in err
 
 
-@pytest.mark.slow  # 5 s on 2 cores, a minute and more when they are shared
+@pytest.mark.slow
 def test_demo_tiny(tmp_path, capsys, monkeypatch):
+    # the demo's wiring, end to end; the neural methods start empty (--init none) because the
+    # warm start costs the same 300 steps of 32k points at any grid (it dominated this test), and
+    # is checked in neural/test_warmstart.py and in the pipeline's identity test
     monkeypatch.setenv("COLUMNS", "200")
     out = tmp_path / "demo"
     rc = main(["demo", "--out", str(out), "--shape", "cube", "--heights", "1", "--angles", "24",
-               "--iters", "2", "--grid", "10", "--bins", "4", "--rays", "8", "--device", "cpu", "--quiet"])
+               "--iters", "2", "--grid", "10", "--bins", "4", "--rays", "8", "--device", "cpu", "--quiet",
+               "--init", "none"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "report.html" in text and "shsas" in text and "Chamfer" in text
