@@ -12,9 +12,10 @@ import { api } from "./api.js";
 const GROUND_TRUTH = 0xd0d0d0;
 // each method's colour is the method catalogue's (GET /methods), fetched once
 let methodColours = null;
+let known = {}; // the catalogue's colours once fetched (legends read them synchronously)
 function coloursOf() {
   methodColours ??= api("/methods")
-    .then((ms) => Object.fromEntries(ms.map((m) => [m.name, parseInt(m.colour.slice(1), 16)])))
+    .then((ms) => (known = Object.fromEntries(ms.map((m) => [m.name, parseInt(m.colour.slice(1), 16)]))))
     .catch(() => ({}));
   return methodColours;
 }
@@ -22,9 +23,11 @@ function coloursOf() {
 // viridis at 5 stops: scalars in [τ, 1] read as a familiar dark-to-bright scale
 const VIRIDIS = [[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551], [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]];
 
-/** The CSS colour a layer of ``key`` (a method, or "ground_truth") is drawn in: for legends. */
+/** The CSS colour a layer of ``key`` (a method, or "ground_truth") is drawn in: for legends
+ * (a method's colour is known once its mesh was added, which fetched the catalogue). */
 export function layerColour(key) {
-  return `#${(COLOURS[key] ?? 0xcccccc).toString(16).padStart(6, "0")}`;
+  const colour = key === "ground_truth" ? GROUND_TRUTH : known[key] ?? 0xcccccc;
+  return `#${colour.toString(16).padStart(6, "0")}`;
 }
 
 /** The point clouds' colour scale as a CSS gradient (low to high intensity). */
