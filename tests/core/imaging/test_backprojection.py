@@ -121,6 +121,9 @@ def test_chunk_sizes_do_not_change_the_result():
 
 @pytest.mark.slow
 def test_compiled_kernel_matches_brute_force():
+    # a fresh compile: earlier tests in this process compiled the kernel for other shapes, and
+    # past dynamo's recompile limit (8) the explicit "compiled" backend raises instead of compiling
+    torch._dynamo.reset()
     sig, tx, rx, t0, fs, c, pts = _random_case(seed=4, n=10, v=50)
     cfg = BackprojectionConfig(backend="compiled", ping_chunk=4, voxel_block=32)
     got = backproject(sig, tx, rx, t0, fs, c, pts, carrier_hz=20e3, config=cfg)
