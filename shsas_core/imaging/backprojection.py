@@ -369,6 +369,11 @@ def backproject(
         txd_t, rxd_t = tab_t[8:12].contiguous(), tab_t[12:16].contiguous()
         a_t = tab_t[16].contiguous()
         flat = buf.reshape(-1)
+        if backend in ("compiled", "auto"):
+            # The record length is the one size that differs between surveys; compiled for one
+            # length only, a long-lived worker would recompile per survey and, past dynamo's
+            # recompile limit, lose the compiled kernel for the rest of the process.
+            torch._dynamo.mark_dynamic(flat, 0)
         for v0 in range(0, v_total, nb):
             v1 = min(v0 + nb, v_total)
             p = pts_all[:, v0 : v0 + nb]

@@ -131,6 +131,19 @@ def test_compiled_kernel_matches_brute_force():
     assert np.abs(got - ref).max() <= 1e-4 * np.abs(ref).max()
 
 
+@pytest.mark.slow
+def test_compiled_kernel_serves_many_record_lengths_in_one_process():
+    # a long-lived worker sees surveys of many record lengths; compiled for each length, the
+    # kernel would pass dynamo's recompile limit (8) at the ninth and stop compiling
+    torch._dynamo.reset()
+    cfg = BackprojectionConfig(backend="compiled", ping_chunk=4, voxel_block=32)
+    for t in range(200, 200 + 10 * 17, 17):
+        sig, tx, rx, t0, fs, c, pts = _random_case(seed=t, n=6, t=t, v=40)
+        got = backproject(sig, tx, rx, t0, fs, c, pts, config=cfg)
+        ref = brute_force(sig.astype(np.complex128), tx, rx, t0, fs, c, pts)
+        assert np.abs(got - ref).max() <= 1e-4 * np.abs(ref).max(), t
+
+
 @pytest.mark.gpu
 def test_cuda_matches_cpu():
     sig, tx, rx, t0, fs, c, pts = _random_case(seed=6, n=32, v=500)
