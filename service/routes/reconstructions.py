@@ -13,11 +13,16 @@ from fastapi.responses import JSONResponse, Response
 
 from jobs.layout import remove_job_files
 from jobs.store import ORDERS, STATUSES, Job
+from shsas_core.formats import all_formats
 
 from ..deps import ERRORS, JobDep, Owner, SettingsDep, StoreDep, json_response
 from ..models import ErrorOut, JobOut, JobPage
 from ..status import live_status
 from ..submission import submit_job
+
+#: The upload's formats, from the one registry (a folder format travels as a .zip of it).
+SURVEY_DESCRIPTION = "a survey in any format `shsas convert` reads: " + "; ".join(
+    f"{f.name}: {f.summary}" for f in all_formats())
 
 log = logging.getLogger("shsas.api")
 router = APIRouter()
@@ -31,9 +36,7 @@ router = APIRouter()
               "schema": {
                   "type": "object", "required": ["survey"], "additionalProperties": False, "properties": {
                       "survey": {"type": "string", "format": "binary",
-                                 "description": "canonical shsas HDF5, or any format `shsas convert` reads: "
-                                                "a zip of an AirSAS scan, deconvolved-ping or SVSS track "
-                                                "folder, or an AirSAS pickle"},
+                                 "description": SURVEY_DESCRIPTION},
                       "spec": {"$ref": "#/components/schemas/ReconstructionSpec",
                                "description": "the ReconstructionSpec as JSON (defaults if absent)"},
                   }},

@@ -6,14 +6,18 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from shsas_core.formats import all_formats
+
+    formats = all_formats()
     p = sub.add_parser(
-        "convert", help="import a survey (AirSAS CSV folder/.zip/.pkl or deconvolved pings, SVSS HDF5) into canonical HDF5",
+        "convert", help="import a survey in any format shsas reads into canonical HDF5",
         description="Convert a survey into the canonical shsas HDF5 file (docs/formats.md). "
-        "The input format is detected from its contents.")
+        "The input format is detected from its contents; the formats: "
+        + "; ".join(f"{f.name}: {f.summary}" for f in formats) + ".")
     p.add_argument("input", help="input survey: file or folder")
     p.add_argument("output", help="output .h5 path")
-    p.add_argument("--format", default="auto",
-                   help="force the input format (auto, shsas, airsas-csv, airsas-pickle, svss, airsas-deconvolved)")
+    p.add_argument("--format", default="auto", choices=("auto", *(f.name for f in formats)),
+                   help="force the input format (default auto: detected from the contents)")
     p.add_argument("--compression", choices=["none", "gzip", "lzf"], default="none",
                    help="compress sample arrays (default none: fastest to read)")
     p.add_argument("--background", default=None,

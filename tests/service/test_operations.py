@@ -19,6 +19,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from shsas_core.formats import all_formats
 from shsas_core.spec.job import ReconstructionSpec
 
 from .conftest import FAST_TIMINGS, REPO, SHSAS, Proc, free_port, start_server, submit, wait_for
@@ -255,6 +256,8 @@ def test_openapi_documents_the_spec_fields(client) -> None:
     body = schema["paths"]["/reconstructions"]["post"]["requestBody"]["content"]["multipart/form-data"]
     spec = body["schema"]["properties"]["spec"]
     assert spec["$ref"] == "#/components/schemas/ReconstructionSpec"
+    survey = body["schema"]["properties"]["survey"]["description"]
+    assert all(f"{f.name}: {f.summary}" in survey for f in all_formats())  # from the registry
     assert body["encoding"]["spec"]["contentType"] == "application/json"
     documented = schema["components"]["schemas"]["ReconstructionSpec"]
     assert set(documented["properties"]) == set(ReconstructionSpec.model_fields)

@@ -215,3 +215,13 @@ def test_names_are_unique_and_unknown_names_are_refused(toy) -> None:
         register(toy)
     with pytest.raises(ShsasError, match="unknown format 'nope'.*toy"):
         load_survey("x", fmt="nope")
+
+
+def test_the_cli_offers_every_registered_format(toy, capsys, monkeypatch) -> None:
+    monkeypatch.setenv("COLUMNS", "2000")  # no wrapping inside a hyphenated name
+    with pytest.raises(SystemExit):
+        cli_main(["convert", "--help"])
+    shown = " ".join(capsys.readouterr().out.split())  # argparse wraps the lines
+    for f in all_formats():
+        assert f"{f.name}: {' '.join(f.summary.split())}" in shown
+    assert "toy" in [f.name for f in all_formats()]
