@@ -80,7 +80,7 @@ def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> l
                       ("fine-n", ExtractConfig(normal_smoothing=default.smoothing)),
                       ("new", default)):
         t0 = time.perf_counter()
-        tau, cloud, mesh = extract(image, cfg, sensors=survey.tx)
+        tau, cloud, mesh = extract(image, cfg, sensors=survey.tx, resolution=survey.meta.range_resolution)
         seconds = time.perf_counter() - t0
         mesh_pts = (sample_surface(np.asarray(mesh.vertices), np.asarray(mesh.faces))
                     if len(mesh.faces) else np.zeros((0, 3)))

@@ -43,7 +43,7 @@ def sphere() -> tuple[PointCloud, np.ndarray, np.ndarray]:
     gt = survey.ground_truth_mesh()
     v, f = np.asarray(gt.vertices), np.asarray(gt.faces)
     samples, tri = sample_surface_faces(v, f, 100_000, 0)
-    cloud = ridge_cloud(vol, choose_threshold(vol), ExtractConfig(), survey.tx)
+    cloud = ridge_cloud(vol, choose_threshold(vol), ExtractConfig(), survey.tx, survey.meta.range_resolution)
     return cloud, samples, face_normals(v, f)[tri]
 
 
