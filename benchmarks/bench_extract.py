@@ -9,7 +9,8 @@ extracted three ways:
 * fine-n: the default but with the ridge points' normals taken at the ridge's own smoothing
   (``normal_smoothing = smoothing``, the default before the normals came from a coarser one);
 * new: the default (ridge points kept by the local-contrast test, normals toward the
-  transmitters, screened Poisson, trimmed and simplified).
+  transmitters that see each point, screened Poisson without the range sidelobes, trimmed and
+  simplified; its scales from the survey's range resolution, passed as ``resolution``).
 
 Columns: points in the cloud; pieces = connected mesh components holding 95 % of its area; area =
 mesh area / ground-truth area; NC = the mesh's normal consistency
@@ -80,7 +81,7 @@ def run_scene(source: str, heights: int, angles: int, grid: int, seed: int) -> l
                       ("fine-n", ExtractConfig(normal_smoothing=default.smoothing)),
                       ("new", default)):
         t0 = time.perf_counter()
-        tau, cloud, mesh = extract(image, cfg, sensors=survey.tx)
+        tau, cloud, mesh = extract(image, cfg, sensors=survey.tx, resolution=survey.meta.range_resolution)
         seconds = time.perf_counter() - t0
         mesh_pts = (sample_surface(np.asarray(mesh.vertices), np.asarray(mesh.faces))
                     if len(mesh.faces) else np.zeros((0, 3)))

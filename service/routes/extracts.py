@@ -91,6 +91,15 @@ def _sensors(view_dir: Path) -> np.ndarray | None:
     return tx.reshape(-1, 3) if tx.size else None
 
 
+def _resolution(view_dir: Path) -> float | None:
+    """The survey's range resolution ``c / 2B``, m, from the survey view's summary; None without one."""
+    view = view_dir / VIEW_NAME
+    if not view.is_file():
+        return None
+    value = (json.loads(view.read_text()).get("summary") or {}).get("range_resolution_m")
+    return float(value) if isinstance(value, int | float) and value > 0 else None
+
+
 def _extract(job: Job, settings: Settings, method: str, tau: float) -> tuple[dict, Path, bool]:
     """The kept extraction of ``method`` at ``tau``, made now if absent: (info, folder, made now)."""
     names = artifact_names(method)
@@ -108,7 +117,8 @@ def _extract(job: Job, settings: Settings, method: str, tau: float) -> tuple[dic
             return json.loads(info_path.read_text()), folder, False
         t0 = time.perf_counter()
         vol = read_volume_npy(vol_path)
-        _, cloud, surface = extract(vol, _config(job, tau), _sensors(survey_view_dir(settings, job.id)))
+        view_dir = survey_view_dir(settings, job.id)
+        _, cloud, surface = extract(vol, _config(job, tau), _sensors(view_dir), _resolution(view_dir))
         folder.mkdir(parents=True, exist_ok=True)
         write_point_cloud_ply(cloud, folder / "pointcloud.ply")
         glb = write_mesh_glb(surface, folder / "mesh.glb")

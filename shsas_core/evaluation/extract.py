@@ -28,13 +28,20 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
    object fills the window) keeps its whole ridge above τ.
 3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.evaluation.ridge`): one sheet of
-   sub-voxel points where the magnitude peaks, instead of the shell's full thickness.
-4. **Normals** across the sheet of the magnitude smoothed by ``normal_smoothing`` voxels (coarser
-   than the ridge's own ``smoothing``: speckle turns the fine sheet's direction along the surface),
+   sub-voxel points where the magnitude peaks, instead of the shell's full thickness, in the
+   magnitude smoothed over ``smoothing`` range resolutions (the scales of steps 3-5 are shares of
+   the survey's range resolution ``c / 2B``, the width of an echo's mainlobe, not of the voxel:
+   a finer grid over the same image finds the same surface).
+4. **Normals** across the sheet of the magnitude smoothed by ``normal_smoothing`` (coarser than
+   the ridge's own ``smoothing``: speckle turns the fine sheet's direction along the surface),
    each turned toward the sensors that lit its point (``sensors``, the survey's transmitter
-   positions).
-5. **Mesh:** screened Poisson through the oriented points, trimmed to the points, simplified
-   (:mod:`shsas_core.evaluation.meshing`).
+   positions): those whose line of sight to it the object, the image's voxels at or above τ,
+   leaves open (:func:`~shsas_core.evaluation.ridge.visibility_votes`).
+5. **Mesh:** screened Poisson through the oriented points, minus the range sidelobes of brighter
+   points (a weaker point standing in front of a brighter one's sheet, within ``sidelobe_reach``
+   range resolutions along its normal; the cloud keeps them), on an octree no finer than
+   ``poisson_cell`` range resolutions, trimmed to ``trim`` range resolutions from the points,
+   simplified (:mod:`shsas_core.evaluation.meshing`).
 
 ``surface = "threshold"`` keeps every voxel centre at or above τ (no ridge, no contrast test) and
 ``mesher = "marching_cubes"`` meshes the normalised magnitude's iso-surface at τ: together they
@@ -76,9 +83,19 @@ class ExtractConfig(BaseModel):
                                    "share of τ (then the contrast test)")
     close_boundary: bool = Field(True, description="pad with empty voxels so meshes close at the box faces")
     chunk: int = Field(65536, ge=1, description="grid points per field evaluation (memory bound)")
-    smoothing: float = Field(1.5, ge=0, le=10, description="Gaussian smoothing before the ridge test, voxels")
-    normal_smoothing: float = Field(3.0, ge=0, le=10, description="Gaussian smoothing before the ridge "
-                                    "points' normals are taken, voxels")
+    smoothing: float = Field(0.443, ge=0, le=5, description="Gaussian smoothing before the ridge test, "
+                             "in range resolutions c/2B (0.443: the range mainlobe's half width at half maximum)")
+    normal_smoothing: float = Field(0.886, ge=0, le=5, description="Gaussian smoothing before the ridge "
+                                    "points' normals are taken, in range resolutions (0.886: the "
+                                    "mainlobe's full width at half maximum)")
+    resolution_voxels: float = Field(3.4, gt=0, description="the range resolution in voxels when the "
+                                     "survey's is not given (the default survey's 8.6 mm over the "
+                                     "default 2.5 mm voxel)")
+    sidelobe_reach: float = Field(1.0, ge=0, le=5, description="Poisson is fed no ridge point standing "
+                                  "within this many range resolutions in front of a stronger one's sheet "
+                                  "(its range sidelobe); 0: off")
+    poisson_cell: float = Field(0.5, ge=0, le=5, description="Poisson's finest cell, in range resolutions "
+                                "(never finer than a voxel)")
     background_window: float = Field(0.05, gt=0, description="edge of the cube the local background "
                                      "mean is taken over, m")
     contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
@@ -86,8 +103,8 @@ class ExtractConfig(BaseModel):
     contrast_strong: float = Field(3.0, gt=0, description="a ridge piece needs one voxel at this multiple")
     min_piece: float = Field(0.01, ge=0, lt=1, description="ridge pieces with fewer points than this share "
                              "of the largest piece's are dropped as specks")
-    trim: float = Field(5.0, gt=0, description="Poisson faces farther than this many voxels from every "
-                        "surface point are cut")
+    trim: float = Field(1.45, gt=0, description="Poisson faces farther than this many range resolutions "
+                        "from every surface point are cut")
     faces_per_point: float = Field(2.0, gt=0, description="face budget of the simplified mesh per surface point")
     max_faces: int = Field(200_000, ge=100, description="most faces of the simplified mesh")
     mesh_min_piece: float = Field(0.05, ge=0, lt=1, description="mesh pieces with less area than this "
@@ -212,8 +229,16 @@ def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float) -> np.n
     return ratio.astype(np.float32)
 
 
+def resolution_m(spacing: float, config: ExtractConfig, resolution: float | None) -> float:
+    """The range resolution the extraction's scales are measured in, m: ``resolution`` (the
+    survey's ``c / 2B``) when given, else ``config.resolution_voxels`` voxels of ``spacing`` m."""
+    if resolution is not None and resolution > 0 and math.isfinite(resolution):
+        return float(resolution)
+    return config.resolution_voxels * float(spacing)
+
+
 def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
-                sensors: np.ndarray | None = None) -> PointCloud:
+                sensors: np.ndarray | None = None, resolution: float | None = None) -> PointCloud:
     """The surface points of ``volume`` (module doc, steps 1-4), with oriented normals.
 
     Args:
@@ -221,6 +246,7 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         tau: the level τ on the normalised magnitude (candidates from ``candidate_share`` x τ).
         sensors: (M, 3) positions of the sensors (transmitters) that lit the scene, m; None:
             normals face away from the centre of the scene box.
+        resolution: the survey's range resolution ``c / 2B``, m (None: ``resolution_voxels``).
     Returns:
         PointCloud of sub-voxel ridge points, their voxels' normalised magnitudes and normals.
     """
@@ -230,47 +256,75 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         orient_toward_sensors,
         ridge,
         sheet_normals,
+        visibility_votes,
     )
 
     _check_tau(tau)
     cfg = config or ExtractConfig()
     norm = normalize(volume)
     grid = volume.grid
+    res = resolution_m(float(np.min(grid.spacing)), cfg, resolution)
+    # the smoothing is a share of the point-spread function's width, not of the voxel: a finer
+    # grid over the same image must find the same ridge
+    voxels = res / float(np.min(grid.spacing))
+    sigma, sigma_n = cfg.smoothing * voxels, cfg.normal_smoothing * voxels
     contrast = local_contrast(norm, grid.spacing, cfg.background_window)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
     lo = np.asarray(grid.box_min)
-    r = ridge(norm, (norm >= cfg.candidate_share * tau) & (contrast >= weak), lo, grid.spacing, cfg.smoothing)
+    r = ridge(norm, (norm >= cfg.candidate_share * tau) & (contrast >= weak), lo, grid.spacing, sigma)
     r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
     r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
     if len(r) < max(grid.shape):
         # too coarse or too sparse an image for the contrast test (the object fills the window):
         # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
-        r = ridge(norm, norm >= tau, lo, grid.spacing, cfg.smoothing)
+        r = ridge(norm, norm >= tau, lo, grid.spacing, sigma)
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
-    if cfg.normal_smoothing != cfg.smoothing:
-        r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, cfg.normal_smoothing))
+    if sigma_n != sigma:
+        r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, sigma_n))
+    votes = None
     if sensors is None or len(np.atleast_2d(sensors)) == 0:
         centre = 0.5 * (np.asarray(grid.box_min) + np.asarray(grid.box_max))
         # a point "sensor" far out along each point's own direction from the centre
         sensors = centre + 1e3 * (r.points - centre)
-    normals = orient_toward_sensors(r.points, r.normals, np.asarray(sensors, dtype=np.float64))
+    else:
+        # the sensors that lit a point are those whose line of sight to it the object leaves
+        # open; the object is where the image is bright (at or above τ)
+        votes = visibility_votes(r.points, r.normals, np.asarray(sensors, dtype=np.float64), norm >= tau,
+                                 lo, grid.spacing, own_cell=res)
+    normals = orient_toward_sensors(r.points, r.normals, np.asarray(sensors, dtype=np.float64), votes=votes)
     return PointCloud(r.points, norm[tuple(r.index.T)].astype(np.float32), normals)
 
 
-def surface_mesh(cloud: PointCloud, spacing: float, config: ExtractConfig | None = None):
-    """Screened Poisson mesh of a ridge cloud (module doc, step 5); ``spacing`` the voxel size, m."""
+def surface_mesh(cloud: PointCloud, spacing: float, config: ExtractConfig | None = None,
+                 resolution: float | None = None):
+    """Screened Poisson mesh of a ridge cloud (module doc, step 5).
+
+    Args:
+        cloud: a ridge cloud (oriented normals). spacing: the voxel size, m.
+        resolution: the survey's range resolution, m (None: ``resolution_voxels`` voxels).
+    """
     from shsas_core.evaluation.meshing import poisson_mesh
+    from shsas_core.evaluation.ridge import suppress_sidelobes
 
     cfg = config or ExtractConfig()
     if cloud.normals is None:
         raise ShsasError("extract: a Poisson mesh needs oriented normals (a ridge cloud)")
-    return poisson_mesh(cloud.points, cloud.normals, spacing, trim=cfg.trim * spacing,
+    res = resolution_m(spacing, cfg, resolution)
+    pts, nrm = cloud.points, cloud.normals
+    if cfg.sidelobe_reach > 0:
+        # the cloud keeps every ridge point (its scores count what it finds); the mesh is one sheet
+        keep = suppress_sidelobes(pts, nrm, cloud.scalars, reach=cfg.sidelobe_reach * res, gap=spacing,
+                                  width=spacing)
+        pts, nrm = pts[keep], nrm[keep]
+    # the image resolves no detail finer than about half its range resolution: a finer octree
+    # only crumples the surface between the points
+    return poisson_mesh(pts, nrm, max(spacing, cfg.poisson_cell * res), trim=cfg.trim * res,
                         faces_per_point=cfg.faces_per_point, max_faces=cfg.max_faces,
                         min_piece=cfg.mesh_min_piece)
 
 
-def extract(volume: Volume, config: ExtractConfig | None = None,
-            sensors: np.ndarray | None = None) -> tuple[float, PointCloud, Any]:
+def extract(volume: Volume, config: ExtractConfig | None = None, sensors: np.ndarray | None = None,
+            resolution: float | None = None) -> tuple[float, PointCloud, Any]:
     """τ by the config, then the point cloud and the mesh: ``(tau, PointCloud, Trimesh)``.
 
     Args:
@@ -278,21 +332,24 @@ def extract(volume: Volume, config: ExtractConfig | None = None,
         config: the extraction (module doc).
         sensors: (M, 3) transmitter positions, m, that face the ridge cloud's normals (see
             :func:`ridge_cloud`); unused by a threshold cloud.
+        resolution: the survey's range resolution ``c / 2B``, m, that the ridge's smoothing,
+            the sidelobe suppression and the mesh's scales are measured in (None:
+            ``config.resolution_voxels`` voxels).
     """
     cfg = config or ExtractConfig()
     tau = choose_threshold(volume, cfg)
+    spacing = float(np.min(volume.grid.spacing))
     if cfg.surface == "ridge":
-        cloud = ridge_cloud(volume, tau, cfg, sensors)
+        cloud = ridge_cloud(volume, tau, cfg, sensors, resolution)
     else:
         cloud = point_cloud(volume, tau)
     if cfg.mesher == "marching_cubes":
         return tau, cloud, mesh(volume, tau, cfg.close_boundary)
     if cloud.normals is None:
         # a threshold cloud has no sheet to orient: Poisson is fed the ridge of the same volume
-        ridge_pts = ridge_cloud(volume, tau, cfg, sensors)
-        spacing = float(np.min(volume.grid.spacing))
-        return tau, cloud, surface_mesh(ridge_pts, spacing, cfg)
-    return tau, cloud, surface_mesh(cloud, float(np.min(volume.grid.spacing)), cfg)
+        ridge_pts = ridge_cloud(volume, tau, cfg, sensors, resolution)
+        return tau, cloud, surface_mesh(ridge_pts, spacing, cfg, resolution)
+    return tau, cloud, surface_mesh(cloud, spacing, cfg, resolution)
 
 
 def threshold_sweep(volume: Volume, taus: Sequence[float],

@@ -170,19 +170,24 @@ def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float) -
 
 
 def orient_toward_sensors(points: np.ndarray, normals: np.ndarray, sensors: np.ndarray,
-                          nearest: int = 8, neighbours: int = 12, rounds: int = 2) -> np.ndarray:
+                          nearest: int = 8, neighbours: int = 12, rounds: int = 2,
+                          votes: np.ndarray | None = None) -> np.ndarray:
     """Sign each normal so it points toward the sensors that lit its point.
 
-    A sonar only sees the side of a surface that faces it, and the object lies inside the
-    survey, so of the sensors on either side of a point's tangent plane those nearest the point
-    are the ones that saw it: each normal is flipped to face the mean direction to its
-    ``nearest`` sensors. Where that vote is weak (a point about as near to sensors on both sides)
-    ``rounds`` passes of a neighbourhood vote (the ``neighbours`` nearest points, weighted by
-    ``|n·n_j|``) make the sign agree with the sheet around it.
+    A sonar only sees the side of a surface that faces it. Each point's own vote is ``votes``
+    where given and non-zero (a signed confidence in [-1, 1] that the input normal faces the
+    lit side, e.g. :func:`visibility_votes`); elsewhere it is the nearest sensors' vote: the object
+    lies inside the survey, so of the sensors on either side of a point's tangent plane those
+    nearest the point are taken to be the ones that saw it, and the normal is flipped to face the
+    mean direction to its ``nearest`` sensors (wrong on faces turned toward the survey's axis, such
+    as the inner faces of a bunny's ears: the sensors that lit them are across the circle). Where
+    the own vote is weak ``rounds`` passes of a neighbourhood vote (the ``neighbours`` nearest
+    points, weighted by ``|n·n_j|``) make the sign agree with the sheet around it.
 
     Args:
         points: (P, 3) m; normals: (P, 3) unit vectors, any sign.
         sensors: (M, 3) sensor (e.g. transmitter) positions, m.
+        votes: (P,) signed confidence that each input normal faces the lit side; 0 = no vote.
     Returns:
         (P, 3) normals, each ``±`` the input.
     """
@@ -197,19 +202,132 @@ def orient_toward_sensors(points: np.ndarray, normals: np.ndarray, sensors: np.n
     to_sensor = sens[j] - pts[:, None, :]
     to_sensor /= np.linalg.norm(to_sensor, axis=2, keepdims=True) + 1e-30
     toward = to_sensor.mean(1)  # (P, 3); |toward·n| in [0, 1]: how clearly the sensors pick a side
-    nrm[np.einsum("pc,pc->p", toward, nrm) < 0] *= -1
+    own = np.einsum("pc,pc->p", toward, nrm)  # vote for the input sign
+    if votes is not None:
+        v = np.asarray(votes, dtype=np.float64)
+        own = np.where(v != 0, v, own)
+    nrm[own < 0] *= -1
+    strength = np.abs(own)  # of the vote for the sign now held
     if len(pts) > 1 and rounds > 0:
         kk = min(neighbours + 1, len(pts))
         _, nb = cKDTree(pts).query(pts, k=kk)
         nb = nb.reshape(len(pts), kk)[:, 1:]
+        held = np.ones(len(pts))  # +1 while a point holds its voted sign, -1 once flipped
         for _ in range(rounds):
             # a point keeps its sign while its own vote outweighs its neighbours' (each weighted
             # by the strength of its own vote): only weakly held signs follow the sheet around them
-            own = np.einsum("pc,pc->p", toward, nrm)
             agree = np.einsum("pkc,pc->pk", nrm[nb], nrm)
-            score = own + (agree * np.abs(own)[nb]).mean(1)
-            nrm[score < 0] *= -1
+            score = held * strength + (agree * strength[nb]).mean(1)
+            flip = score < 0
+            nrm[flip] *= -1
+            held[flip] *= -1
     return nrm
+
+
+def visibility_votes(points: np.ndarray, normals: np.ndarray, sensors: np.ndarray, occupied: np.ndarray,
+                     box_min: np.ndarray, spacing: np.ndarray, own_cell: float, max_sensors: int = 32,
+                     min_cos: float = 0.2, chunk: int = 2048) -> np.ndarray:
+    """Which side of each point's sheet the sensors that could see it lie on.
+
+    The object blocks sound: a sensor behind the surface (on the inner side of a point's tangent
+    plane) sees the point only through the object, whose far wall is bright in the image. For each
+    point and each of up to ``max_sensors`` sensors (evenly chosen) the line of sight is marched
+    voxel by voxel through ``occupied`` (the image's bright voxels) to the sensor or the box's
+    face; hits within ``own_cell`` of the point's tangent plane are the point's own echo and
+    do not block. The vote is the share of the sensors on the normal's side that see the point
+    unblocked less the share on the other side: on an object closed by bright walls the inner
+    side sees nothing, the outer side some or all. Sensors within ``asin(min_cos)`` of the
+    tangent plane (grazing) take no part.
+
+    Args:
+        points: (P, 3) m; normals: (P, 3) unit, any sign; sensors: (M, 3) m.
+        occupied: (X, Y, Z) bool, voxels that block a line of sight.
+        box_min: (3,) grid corner, m; spacing: (3,) voxel size, m.
+        own_cell: half-thickness of the point's own echo across its sheet, m (the range
+            resolution: the mainlobe of a point's echo reaches its first null there).
+    Returns:
+        (P,) votes in [-1, 1] for the input normal's sign (0: no sensor decides).
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    sens = np.unique(np.asarray(sensors, dtype=np.float64).reshape(-1, 3), axis=0)
+    out = np.zeros(len(pts))
+    if len(pts) == 0 or len(sens) == 0:
+        return out
+    if len(sens) > max_sensors:
+        sens = sens[np.linspace(0, len(sens) - 1, max_sensors).round().astype(np.int64)]
+    h = np.asarray(spacing, dtype=np.float64)
+    lo = np.asarray(box_min, dtype=np.float64)
+    shape = np.asarray(occupied.shape)
+    hi = lo + shape * h
+    step = float(h.min())  # one voxel per step: a sheet of bright voxels is not stepped over
+    for a in range(0, len(pts), chunk):
+        p, n = pts[a:a + chunk], nrm[a:a + chunk]
+        u = sens[None, :, :] - p[:, None, :]  # (C, S, 3) toward each sensor
+        dist = np.linalg.norm(u, axis=2)
+        u /= dist[..., None]
+        cos = np.einsum("pc,psc->ps", n, u)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            exits = np.where(u > 0, (hi - p[:, None, :]) / u, np.where(u < 0, (lo - p[:, None, :]) / u, np.inf))
+        reach = np.minimum(exits.min(2), dist)  # the march ends at the box's face or the sensor
+        blocked = np.zeros(cos.shape, dtype=bool)
+        for k in range(1, int(np.ceil(float(reach.max()) / step)) + 1):
+            t = k * step
+            live = (t < reach) & ~blocked & (np.abs(t * cos) > own_cell)
+            if not live.any():
+                if not np.any((t < reach) & ~blocked):
+                    break
+                continue
+            idx = np.floor((p[:, None, :] + t * u - lo) / h).astype(np.int64)
+            live &= np.all((idx >= 0) & (idx < shape), axis=2)
+            j = idx[live]
+            blocked[live] = occupied[j[:, 0], j[:, 1], j[:, 2]]
+        use = np.abs(cos) >= min_cos
+        seen = use & ~blocked
+        front, back = use & (cos > 0), use & (cos < 0)
+        out[a:a + chunk] = ((seen & front).sum(1) / np.maximum(front.sum(1), 1)
+                            - (seen & back).sum(1) / np.maximum(back.sum(1), 1))
+    return out
+
+
+def suppress_sidelobes(points: np.ndarray, normals: np.ndarray, strength: np.ndarray, reach: float,
+                       gap: float, width: float) -> np.ndarray:
+    """Which points are not a range sidelobe standing in front of a stronger point's sheet.
+
+    A bright sheet's range sidelobes stand as weaker parallel sheets within the range resolution
+    of it. In front of a lit surface (on the side of the sensors that lit it) there is only the
+    medium, so a weaker sheet there is the surface's sidelobe; behind it a weaker sheet may be a
+    real surface (the far face of a thin part, lit from the other side) and stays. Point ``i`` is
+    dropped when a stronger point ``j`` has it in front, along ``j``'s oriented normal at a
+    distance between ``gap`` and ``reach`` and within ``width`` of that line (a KD-tree finds the
+    candidates). ``gap`` keeps ``j``'s own sheet (the ridge places one point per voxel column,
+    so its neighbours on the sheet lie within a voxel of the tangent plane).
+
+    Args:
+        points: (P, 3) m; normals: (P, 3) unit, facing the sensors that lit each point;
+        strength: (P,) magnitude. reach, gap, width: m.
+    Returns:
+        (P,) bool, True for the points kept.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    keep = np.ones(len(pts), dtype=bool)
+    if len(pts) < 2 or reach <= gap:
+        return keep
+    pairs = cKDTree(pts).query_pairs(float(np.hypot(reach, width)), output_type="ndarray")
+    if len(pairs) == 0:
+        return keep
+    pairs = np.concatenate([pairs, pairs[:, ::-1]])  # (i, j) both ways
+    i, j = pairs[:, 0], pairs[:, 1]
+    val = np.asarray(strength, dtype=np.float64)
+    stronger = val[j] > val[i]
+    i, j = i[stronger], j[stronger]
+    d = pts[i] - pts[j]
+    n = np.asarray(normals, dtype=np.float64)[j]
+    along = np.einsum("pc,pc->p", d, n)  # > 0: i stands in front of j's sheet
+    across = np.linalg.norm(d - along[:, None] * n, axis=1)
+    hit = (along >= gap) & (along <= reach) & (across <= width)
+    keep[i[hit]] = False
+    return keep
 
 
 def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float) -> Ridge:

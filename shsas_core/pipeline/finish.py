@@ -35,7 +35,7 @@ from shsas_core.spec.catalogue import REGISTRY
 from shsas_core.spec.job import EXTRACTION_FIELDS, ReconstructionSpec
 
 #: Bump when extraction changes: finished runs then re-extract from their saved volumes.
-EXTRACT_VERSION = 4
+EXTRACT_VERSION = 5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +57,7 @@ class MethodOutputs:
         method: its catalogue name. spec: the job's. gt: the ground truth when the survey has one.
         out: the job's output folder. cache: the method's checkpoints.
         sensors: (N, 3) transmitter positions, m, that the surface normals face.
+        resolution: the survey's range resolution ``c / 2B``, m (the extraction's scales).
         progress: the method's progress (fraction of the method). should_stop: as everywhere.
     """
 
@@ -66,6 +67,7 @@ class MethodOutputs:
     out: Path
     cache: MethodCache
     sensors: np.ndarray
+    resolution: float | None
     progress: ProgressFn
     should_stop: StopFn
 
@@ -92,7 +94,7 @@ def finish(where: MethodOutputs, result: MethodResult, t0: float) -> tuple[Metho
     """
     spec, vol, out, names = where.spec, result.volume, where.out, where.names
     ecfg = ExtractConfig(threshold=spec.threshold, surface=spec.surface, mesher=spec.mesher)
-    tau, cloud, mesh_ = extract(vol, ecfg, where.sensors)
+    tau, cloud, mesh_ = extract(vol, ecfg, where.sensors, where.resolution)
     write_volume_npy(vol, out / names["volume"])
     write_point_cloud_ply(cloud, out / names["pointcloud"])
     write_mesh_ply(mesh_, out / names["mesh_ply"])

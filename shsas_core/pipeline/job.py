@@ -230,6 +230,7 @@ def _run_method(ctx: MethodContext, cache: MethodCache, gt: GroundTruth | None, 
     ``ctx.name``, or reload it when already done; checkpoints in ``cache``."""
     method, progress = ctx.name, ctx.progress
     where = MethodOutputs(method=method, spec=ctx.spec, gt=gt, out=out, cache=cache, sensors=ctx.survey.tx,
+                          resolution=ctx.survey.meta.range_resolution,
                           progress=progress, should_stop=ctx.should_stop)
     names = where.names
     rep = cache.finished() if all((out / n).exists() for n in names.values()) else None

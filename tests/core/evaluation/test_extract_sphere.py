@@ -5,8 +5,9 @@ The built-in sphere (on the floor, centre 8 cm up) from a small survey (10 rings
 20 dB), backprojected on the default grid. Measured on this image (mean |cos| of the ridge normals
 against the true surface's; share of the lower half's surface within 5 mm of a ridge point):
 
-- normals taken at the ridge's own smoothing (1.5 voxels): 0.84-0.89; at the default coarser one
-  (3 voxels): 0.97-0.99. Speckle turns the fine sheet's direction along the surface.
+- normals taken at the ridge's own smoothing (1.5 voxels; now 0.443 range resolutions, 1.5
+  voxels on this grid): 0.84-0.89; at the default coarser one (3 voxels, now 0.886 range
+  resolutions): 0.97-0.99. Speckle turns the fine sheet's direction along the surface.
 - candidates at or above τ: 9 % of the lower half; from half of τ (the default): 17.5 %. The lower
   half, seen only at grazing angles, is dimmer than τ, and the contrast test tells it from
   background.
@@ -43,7 +44,7 @@ def sphere() -> tuple[PointCloud, np.ndarray, np.ndarray]:
     gt = survey.ground_truth_mesh()
     v, f = np.asarray(gt.vertices), np.asarray(gt.faces)
     samples, tri = sample_surface_faces(v, f, 100_000, 0)
-    cloud = ridge_cloud(vol, choose_threshold(vol), ExtractConfig(), survey.tx)
+    cloud = ridge_cloud(vol, choose_threshold(vol), ExtractConfig(), survey.tx, survey.meta.range_resolution)
     return cloud, samples, face_normals(v, f)[tri]
 
 

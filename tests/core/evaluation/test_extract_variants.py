@@ -62,7 +62,7 @@ def test_default_extraction_keeps_the_surface(name: str, shared) -> None:
     s_pd = np.asarray(deconvolve(survey, deconv_config(ReconstructionSpec())), dtype=np.complex64)
     vol = backproject_survey(survey, grid, s_pd)
     gt = survey.ground_truth_mesh()
-    tau, cloud, mesh = extract(vol, sensors=survey.tx)
+    tau, cloud, mesh = extract(vol, sensors=survey.tx, resolution=survey.meta.range_resolution)
     surface = cKDTree(gt.sample(200_000, seed=0))
     dist = surface.query(cloud.points)[0]
     old = point_cloud(vol, tau)  # the paper's cloud: every voxel at or above the same τ

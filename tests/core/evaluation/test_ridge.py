@@ -1,7 +1,9 @@
 """Ridge points of a blurred shell: one sheet at the known ridge radius, normals facing the sensors.
 
 References: the ridge radius of an analytic Gaussian shell (its profile peaks at the shell radius)
-and a brute-force loop that tests every voxel along its direction with scipy's spline interpolation.
+and a brute-force loop that tests every voxel along its direction with scipy's spline interpolation;
+for the sidelobe suppression a point-by-point loop and an analytic double sheet; for the
+visibility vote two closed spheres whose facing halves the nearest sensors see from behind.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from shsas_core.evaluation.ridge import (
     drop_small_pieces,
     orient_toward_sensors,
     ridge,
+    suppress_sidelobes,
+    visibility_votes,
 )
 
 H = 0.0025
@@ -126,3 +130,100 @@ def test_normals_face_the_sensors_around_an_object() -> None:
     rings = [np.stack([0.85 * np.cos(ang), 0.85 * np.sin(ang), np.full(90, z)], 1) for z in (-0.4, 0.0, 0.4)]
     n = orient_toward_sensors(pts, flipped, np.concatenate(rings))
     assert np.all(np.einsum("pc,pc->p", n, out) > 0)
+
+
+def suppressed_by_loop(points: np.ndarray, normals: np.ndarray, strength: np.ndarray, reach: float, gap: float,
+                       width: float) -> np.ndarray:
+    """The sidelobe rule point by point: dropped when some stronger point's normal line passes
+    within ``width`` of it at a distance in [gap, reach] in front of it (along its normal)."""
+    keep = np.ones(len(points), dtype=bool)
+    for i in range(len(points)):
+        for j in range(len(points)):
+            if strength[j] <= strength[i]:
+                continue
+            d = points[i] - points[j]
+            along = float(d @ normals[j])
+            across = float(np.linalg.norm(d - along * normals[j]))
+            if gap <= along <= reach and across <= width:
+                keep[i] = False
+                break
+    return keep
+
+
+def test_sidelobe_suppression_matches_a_brute_force_loop() -> None:
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-0.02, 0.02, (300, 3))
+    nrm = rng.standard_normal((300, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    strength = rng.uniform(0, 1, 300)
+    got = suppress_sidelobes(pts, nrm, strength, reach=0.0086, gap=0.0025, width=0.004)
+    want = suppressed_by_loop(pts, nrm, strength, reach=0.0086, gap=0.0025, width=0.004)
+    assert 0 < (~want).sum() < len(pts)  # the draw exercises both outcomes
+    np.testing.assert_array_equal(got, want)
+
+
+def double_sheet(apart: float, second: float) -> np.ndarray:
+    """A bright plane z = 0 and a weaker parallel one ``apart`` m above it (``second`` of its
+    peak), each a Gaussian profile of 2 mm across, over a 10 cm square."""
+    c = centres()
+    inside = np.all(np.abs(c[..., :2]) < 0.05, axis=-1)
+    z = c[..., 2] - 0.0003  # off the voxel lattice
+    prof = np.exp(-0.5 * (z / 0.002) ** 2) + second * np.exp(-0.5 * ((z - apart) / 0.002) ** 2)
+    return (prof * inside).astype(np.float32)
+
+
+def kept_sheet_shares(apart: float, lit_from: float) -> tuple[float, float]:
+    """Shares of the bright sheet's and the weaker sheet's ridge points kept, the surface lit from
+    above (``lit_from`` = +1) or below (-1)."""
+    v = double_sheet(apart, 0.5)
+    r = ridge(v, v > 0.2, LO, np.full(3, H), sigma=0.5)
+    z = r.points[:, 2]
+    main, side = np.abs(z) < H, np.abs(z - apart) < H
+    assert main.sum() > 1000 and side.sum() > 1000  # the ridge finds both sheets
+    up = lit_from * np.sign(r.normals[:, 2:3])  # the normals face the sensors
+    keep = suppress_sidelobes(r.points, r.normals * up, v[tuple(r.index.T)], reach=0.0086, gap=H, width=H)
+    return float(keep[main].mean()), float(keep[side].mean())
+
+
+def test_a_double_sheet_keeps_the_main_sheet_only() -> None:
+    # a weaker sheet 7.5 mm in front of a bright one, under the 8.6 mm range resolution: its sidelobe
+    main, side = kept_sheet_shares(0.0075, +1.0)
+    assert main > 0.99 and side < 0.02
+    # the same sheet behind the bright one (the far face of a thin part) stays
+    main, side = kept_sheet_shares(0.0075, -1.0)
+    assert main > 0.99 and side > 0.99
+    # beyond the range resolution a second sheet is a second surface, and stays
+    main, side = kept_sheet_shares(0.012, +1.0)
+    assert main > 0.99 and side > 0.99
+
+
+def two_closed_spheres() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two hollow spheres (2.5 cm radius, centres at x = ±4 cm) as bright voxel shells, and the
+    points of each one's half that faces the other with their outward normals."""
+    c = centres()
+    occupied = np.zeros(c.shape[:3], dtype=bool)
+    pts, nrm = [], []
+    for cx in (-0.04, 0.04):
+        centre = np.array([cx, 0.0, 0.0])
+        occupied |= np.abs(np.linalg.norm(c - centre, axis=-1) - 0.025) < H
+        d = np.random.default_rng(0).standard_normal((400, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        d = d[d[:, 0] * -np.sign(cx) > 0.7]  # facing the other sphere, toward the survey's axis
+        pts.append(centre + 0.025 * d)
+        nrm.append(d)
+    return occupied, np.concatenate(pts), np.concatenate(nrm)
+
+
+def test_visibility_orients_faces_turned_toward_the_axis() -> None:
+    occupied, pts, out = two_closed_spheres()
+    ang = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    rings = np.concatenate([np.stack([0.85 * np.cos(ang), 0.85 * np.sin(ang), np.full(90, z)], 1)
+                            for z in (0.05, 0.2, 0.4)])
+    flip = np.random.default_rng(2).choice([-1.0, 1.0], size=(len(pts), 1))
+    # the nearest sensors lie behind these faces: that vote alone turns most of them inward
+    nearest = orient_toward_sensors(pts, out * flip, rings, rounds=0)
+    assert np.mean(np.einsum("pc,pc->p", nearest, out) < 0) > 0.5
+    votes = visibility_votes(pts, out * flip, rings, occupied, LO, np.full(3, H), own_cell=0.0086)
+    assert np.all(votes * flip[:, 0] > 0)  # each vote picks the outward side
+    n = orient_toward_sensors(pts, out * flip, rings, votes=votes)
+    assert np.mean(np.einsum("pc,pc->p", n, out) > 0) > 0.99
