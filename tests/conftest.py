@@ -132,3 +132,22 @@ def shared() -> Path:
     if d is None:
         pytest.skip("../shared is not beside the checkout")
     return d
+
+
+@pytest.fixture(scope="session")
+def airsas_cutout() -> tuple[Survey, np.ndarray, float]:
+    """The public AirSAS cut-out scan (``shared/data/airsas``, read in place) with its background
+    removed: (survey, deconvolved signals, height of its plane of best focus under the nominal
+    geometry). Built once per session: several modules read it, and the focus search alone costs
+    seconds."""
+    d = shared_dir()
+    root = None if d is None else d / "data" / "airsas"
+    if root is None or not (root / "cutout_20k").is_dir() or not (root / "bg_20k").is_dir():
+        pytest.skip("../shared/data/airsas/cutout_20k is not beside the checkout")
+    from shsas_core.formats import load_survey
+    from shsas_core.imaging.planar import focus_height
+    from shsas_core.signal.deconv import deconvolve
+
+    s = load_survey(root / "cutout_20k", background=root / "bg_20k")
+    sig = deconvolve(s)
+    return s, sig, focus_height(s, sig)
