@@ -41,7 +41,17 @@ def _cpu_seconds() -> tuple[float, float]:
 
 def pytest_sessionstart(session: pytest.Session) -> None:
     global _cpu_report
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        # pytest-xdist's workers share the CPUs: a torch pool per worker sized for the whole
+        # machine makes OpenMP threads spin for CPUs the other workers hold
+        from shsas_core.common.threads import owned_cpus
+
+        torch.set_num_threads(max(1, owned_cpus() // workers))
     path = os.environ.get(_CPU_REPORT_ENV)
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if path and worker:
+        path = f"{path}.{worker}"  # one file per xdist worker (gw0, gw1, ...)
     if path:
         # one JSON line per test, flushed as it finishes, so a partial run is still readable
         _cpu_report = open(path, "w", encoding="utf-8")
