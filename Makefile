@@ -46,11 +46,14 @@ test: $(STAMP) $(CONSOLE)
 	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
 
-# the inner loop: everything but the slow and the service tests (no Redis, PostgreSQL or browser)
+# the inner loop: everything but the slow and the service tests (no Redis, PostgreSQL or browser),
+# on two pytest-xdist workers of one torch thread each (tests/conftest.py): most of the suite is
+# single-threaded Python, so one process leaves a core idle. --dist loadfile keeps each module on
+# one worker, so a module fixture (a simulated survey, a trained field) is still built once.
 test-fast: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q -m "not slow and not service"
+	$(BIN)/python -m pytest -q -m "not slow and not service" -n 2 --dist loadfile
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

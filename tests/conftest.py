@@ -41,7 +41,17 @@ def _cpu_seconds() -> tuple[float, float]:
 
 def pytest_sessionstart(session: pytest.Session) -> None:
     global _cpu_report
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if workers > 1:
+        # pytest-xdist's workers share the CPUs: a torch pool per worker sized for the whole
+        # machine makes OpenMP threads spin for CPUs the other workers hold
+        from shsas_core.common.threads import owned_cpus
+
+        torch.set_num_threads(max(1, owned_cpus() // workers))
     path = os.environ.get(_CPU_REPORT_ENV)
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    if path and worker:
+        path = f"{path}.{worker}"  # one file per xdist worker (gw0, gw1, ...)
     if path:
         # one JSON line per test, flushed as it finishes, so a partial run is still readable
         _cpu_report = open(path, "w", encoding="utf-8")
@@ -132,3 +142,22 @@ def shared() -> Path:
     if d is None:
         pytest.skip("../shared is not beside the checkout")
     return d
+
+
+@pytest.fixture(scope="session")
+def airsas_cutout() -> tuple[Survey, np.ndarray, float]:
+    """The public AirSAS cut-out scan (``shared/data/airsas``, read in place) with its background
+    removed: (survey, deconvolved signals, height of its plane of best focus under the nominal
+    geometry). Built once per session: several modules read it, and the focus search alone costs
+    seconds."""
+    d = shared_dir()
+    root = None if d is None else d / "data" / "airsas"
+    if root is None or not (root / "cutout_20k").is_dir() or not (root / "bg_20k").is_dir():
+        pytest.skip("../shared/data/airsas/cutout_20k is not beside the checkout")
+    from shsas_core.formats import load_survey
+    from shsas_core.imaging.planar import focus_height
+    from shsas_core.signal.deconv import deconvolve
+
+    s = load_survey(root / "cutout_20k", background=root / "bg_20k")
+    sig = deconvolve(s)
+    return s, sig, focus_height(s, sig)

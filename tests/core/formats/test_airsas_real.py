@@ -11,9 +11,8 @@ import pytest
 from shsas_core.data.geometry import elevation_info
 from shsas_core.data.survey import SceneBox
 from shsas_core.imaging.autofocus import AutofocusConfig, autofocus
-from shsas_core.imaging.planar import focus_height, outline, plane_image
+from shsas_core.imaging.planar import outline, plane_image
 from shsas_core.imaging.sharpness import image_entropy
-from shsas_core.signal.deconv import deconvolve
 from tests.conftest import shared_dir
 from tests.helpers.focus_scenes import perturbed
 
@@ -25,16 +24,9 @@ PLANE_BOX = SceneBox(min=(-0.15, -0.15, -0.05), max=(0.15, 0.15, 0.2))
 
 
 @pytest.fixture(scope="module")
-def scan():
-    d = shared_dir()
-    root = None if d is None else d / "data" / "airsas"
-    if root is None or not (root / "cutout_20k").is_dir() or not (root / "bg_20k").is_dir():
-        pytest.skip("../shared/data/airsas/cutout_20k is not beside the checkout")
-    from shsas_core.formats import load_survey
-
-    s = load_survey(root / "cutout_20k", background=root / "bg_20k")
-    sig = deconvolve(s)
-    return s, sig, focus_height(s, sig)
+def scan(airsas_cutout):
+    """(survey, deconvolved signals, plane of best focus): tests/conftest.py's session copy."""
+    return airsas_cutout
 
 
 def test_import_is_a_single_height_scan_with_background_removed(scan):
@@ -78,7 +70,14 @@ def test_cutout_extent_and_sharp_edges(scan):
             assert min(outline(img2.values, img2.grid).edge_fall_m) > 2 * res
 
 
-@pytest.mark.parametrize("rel,dr", [(0.02, 0.0), (-0.02, 0.0), (0.0, 0.005), (0.0, -0.005)])
+# One case runs in make test-fast, the others (5-10 CPU s each) in make test only: the simulated
+# scenes of tests/core/imaging/test_autofocus.py cover both signs of a sound-speed error and the
+# range offset in the fast loop, and this first case keeps the real recording's path there.
+_SLOW = pytest.mark.slow
+
+
+@pytest.mark.parametrize("rel,dr", [(0.02, 0.0), pytest.param(-0.02, 0.0, marks=_SLOW),
+                                    pytest.param(0.0, 0.005, marks=_SLOW), pytest.param(0.0, -0.005, marks=_SLOW)])
 def test_autofocus_recovers_perturbed_sound_speed_and_range_offset(scan, rel, dr):
     """One parameter at a time, in the plane of best focus under the nominal geometry: on a
     single-height scan, c, the range offset and the plane's height trade off (see

@@ -7,9 +7,6 @@ from __future__ import annotations
 import pytest
 
 from shsas_core.imaging.autofocus import AutofocusConfig, autofocus
-from shsas_core.imaging.planar import focus_height
-from shsas_core.signal.deconv import deconvolve
-from tests.conftest import shared_dir
 from tests.helpers.focus_scenes import perturbed
 from tests.helpers.narrowband import band_limited
 
@@ -18,18 +15,12 @@ NARROW_CENTRE_HZ, NARROW_BAND_HZ = 20e3, 5e3
 
 
 @pytest.fixture(scope="module")
-def scans():
+def scans(airsas_cutout):
     """(wideband survey, band-limited survey, height of the scene's plane): the plane is the
     wideband scan's plane of best focus under its nominal geometry, what an operator who knows
     where the turntable is would give as --plane-z."""
-    d = shared_dir()
-    root = None if d is None else d / "data" / "airsas"
-    if root is None or not (root / "cutout_20k").is_dir() or not (root / "bg_20k").is_dir():
-        pytest.skip("../shared/data/airsas/cutout_20k is not beside the checkout")
-    from shsas_core.formats import load_survey
-
-    s = load_survey(root / "cutout_20k", background=root / "bg_20k")
-    return s, band_limited(s, NARROW_CENTRE_HZ, NARROW_BAND_HZ), focus_height(s, deconvolve(s))
+    s, _, plane_z = airsas_cutout
+    return s, band_limited(s, NARROW_CENTRE_HZ, NARROW_BAND_HZ), plane_z
 
 
 def test_band_limited_scan_is_narrow(scans):

@@ -65,7 +65,9 @@ def test_distill_reproduces_a_complex_image() -> None:
     vol = Volume(grid, _blob(grid))
     torch.manual_seed(0)
     field = SHField(FieldConfig(sh_degree=1, scene_box=box, encoding=SMALL))
-    res = distill(field, vol, WarmStartConfig(steps=300, batch=4096, peak=2.0))
+    # 150 steps end well inside both bounds (measured: loss ratio 0.002, relative error 0.052;
+    # 300 steps gave 0.0005 and 0.033) at half the cost
+    res = distill(field, vol, WarmStartConfig(steps=150, batch=4096, peak=2.0))
     assert res.loss_history[-1] < 0.05 * res.loss_history[0]
     with torch.no_grad():
         c00 = field.coefficients(torch.from_numpy(grid.points()).float())[:, 0].numpy() * INV_SQRT_4PI
