@@ -374,6 +374,54 @@ def test_normal_window_lights_the_ridge_of_a_thin_shell() -> None:
     assert torch.all(g4[8:] == 0)  # the far flank stays dark
 
 
+def test_windowed_normal_at_a_shell_ridge_points_outward_by_finite_differences() -> None:
+    # An oblique ray (not through the centre) crosses a thin Gaussian shell; sample 6 lies exactly
+    # on its ridge, where ∇|σ_DC| = 0. The paper's normal (W = 1) is then the zero vector and the
+    # Lambertian term 0. A window of 5 sums the gradients of the rising flank before the ridge:
+    # the normal is non-zero, points out of the shell and towards the sonar. The reference is
+    # central finite differences of the density, independent of autograd and of windowed_normals.
+    field = ShellField(center=(0.0, 0.0, 0.0), radius=0.05, width=0.004, amp=1.0, beta=0.0)
+    center = field.center.detach()
+    ridge_point = 0.05 * torch.tensor([math.cos(0.5) * math.cos(0.3), math.sin(0.5) * math.cos(0.3),
+                                       math.sin(0.3)], dtype=D)
+    tx = torch.tensor([[0.6, 0.05, 0.02]], dtype=D)
+    u = (ridge_point - tx[0]) / (ridge_point - tx[0]).norm()
+    geom = _geom(tx, tx.clone(), center[None])
+    dirs = u[None, None]
+    step = 0.0015  # m along the ray, about a fifth of the shell's ±2σ width
+    one_way = (ridge_point - tx[0]).norm() + step * torch.arange(-6, 4, dtype=D)
+    radii = (2 * one_way)[None]
+    window, ridge = 5, 6
+
+    def lit(w: int) -> dict[str, torch.Tensor]:
+        cfg = RenderConfig(num_rays=1, normal_window=w)
+        return render_samples(field, geom, radii, dirs, torch.ones(1, dtype=D), cfg, create_graph=False)
+
+    x = lit(window)["x"][0, :, 0]  # (K, 3) the samples
+    torch.testing.assert_close(x[ridge], ridge_point, rtol=0, atol=1e-12)
+
+    # reference: the density's central differences (h = 1e-6 m) at the window's samples, summed
+    h = 1e-6
+    eye = torch.eye(3, dtype=D) * h
+    with torch.no_grad():
+        fd = (field.dc_abs(x[:, None] + eye) - field.dc_abs(x[:, None] - eye)) / (2 * h)  # (K, 3) 1/m²
+    total = fd[ridge - window + 1: ridge + 1].sum(0)
+    want = -total / total.norm()
+
+    paper, windowed = lit(1), lit(window)
+    own = windowed["gradient"][0, :, 0]  # the field's own gradients, what the paper's normal is made of
+    torch.testing.assert_close(own, fd, rtol=0, atol=1e-6 * fd.norm(dim=-1).max())
+    assert own[ridge].norm() < 1e-9 * own[ridge - 2].norm()  # it vanishes on the ridge
+    assert torch.all(paper["lambertian"][0, ridge + 1:, 0] == 0)  # and past it the paper's term is dark
+    n = windowed_normals(windowed["gradient"], window)[0, ridge, 0]
+    torch.testing.assert_close(n, want, rtol=0, atol=1e-6)
+    outward = (x[ridge] - center) / (x[ridge] - center).norm()
+    assert float(n @ outward) > 0.5  # out of the shell, not along the ray only
+    assert float(n @ -u) > 0  # towards the sonar, so the ridge is lit
+    torch.testing.assert_close(windowed["lambertian"][0, ridge, 0], (want @ -u).clamp_min(0), rtol=0, atol=1e-6)
+    assert torch.all(windowed["lambertian"][0, ridge + 1: ridge + 3, 0] > 0.5)  # lit past the ridge too
+
+
 def test_render_transients_applies_the_normal_window_across_chunks() -> None:
     survey = _survey()
     field = ShellField(center=(0.0, 0.0, 0.1), radius=0.04, width=0.006, amp=50.0)
