@@ -169,7 +169,8 @@ def _geom(tx, rx, center):
     return PingGeometry(tx, rx, axis, torch.full((tx.shape[0],), 0.15, dtype=tx.dtype))
 
 
-def test_renderer_gradcheck_float64():
+@pytest.mark.parametrize("window", [1, 5])  # the paper's normals and the default window
+def test_renderer_gradcheck_float64(window):
     field = ShellField(width=0.02)
     tx = torch.tensor([[0.6, 0.0, 0.15], [0.0, 0.5, 0.05]], dtype=D)
     rx = tx + torch.tensor([[0.01, 0.0, -0.04], [0.0, 0.02, 0.03]], dtype=D)
@@ -177,7 +178,7 @@ def test_renderer_gradcheck_float64():
     dist_c = (field.center.detach() - tx).norm(dim=-1)
     radii = 2 * dist_c[:, None] + torch.linspace(-0.12, -0.06, 4, dtype=D)[None, :]
     g = torch.Generator().manual_seed(0)
-    cfg = RenderConfig(num_rays=12)
+    cfg = RenderConfig(num_rays=12, normal_window=window)
     from shsas_core.neural.render import cone_directions as cd
 
     dirs, omega = cd(geom.axis, geom.half_angle, 12, g)
@@ -294,7 +295,8 @@ def test_baseband_surveys_render_in_their_own_convention():
     assert np.allclose(b[0], a[0] * np.exp(-2j * np.pi * 20e3 * t), rtol=1e-4, atol=1e-6 * np.abs(a).max())
 
 
-def test_renderer_gradcheck_with_a_tiny_shfield_float64():
+@pytest.mark.parametrize("window", [1, 5])  # the paper's normals and the default window
+def test_renderer_gradcheck_with_a_tiny_shfield_float64(window):
     """Gradients of the rendered bins w.r.t. the SH field's output layer (through scattering,
     density/transmittance and the normals of the Lambertian term) match finite differences."""
     from shsas_core.neural.fields import HashEncodingConfig, SHField
@@ -317,7 +319,8 @@ def test_renderer_gradcheck_with_a_tiny_shfield_float64():
 
     def fn(weight):
         last.weight = weight
-        return render_samples(f, geom, radii, dirs, omega, RenderConfig(num_rays=6), create_graph=True)["signal"]
+        return render_samples(f, geom, radii, dirs, omega, RenderConfig(num_rays=6, normal_window=window),
+                             create_graph=True)["signal"]
 
     assert fn(inp).abs().min() > 0
     assert torch.autograd.gradcheck(fn, (inp,), eps=1e-6, atol=1e-6, rtol=1e-4)
@@ -430,5 +433,6 @@ def test_render_transients_applies_the_normal_window_across_chunks() -> None:
     chunked = render_transients(field, survey, [0, 1], win, seed=7, bins_per_chunk=5)
     assert np.abs(one).max() > 0
     np.testing.assert_allclose(chunked, one, rtol=1e-5, atol=1e-6 * np.abs(one).max())
-    plain = render_transients(field, survey, [0, 1], RenderConfig(num_rays=300), seed=7, bins_per_chunk=1000)
+    plain = render_transients(field, survey, [0, 1], RenderConfig(num_rays=300, normal_window=1), seed=7,
+                              bins_per_chunk=1000)
     assert np.abs(plain - one).max() > 0.01 * np.abs(one).max()  # the window changes the render
