@@ -166,7 +166,7 @@ def spec_json_schema(ref_template: str = DEFAULT_REF_TEMPLATE) -> dict[str, Any]
 PAPER_SETTINGS: dict[str, object] = {
     "init": "none", "forward": "impulse", "target": "coherent", "lr": 1e-3, "encoding": "paper_gpu",
     "num_bins": 200, "num_rays": 4800, "iters": 50_000, "occupancy": None, "sparsity": 0.0,
-    "angular_prior": 0.0,
+    "angular_prior": 0.0, "normal_window": 1,
     "average_last": None, "coarse_to_fine": None, "surface": "threshold", "mesher": "marching_cubes",
 }
 PRESETS: dict[str, dict[str, object]] = {"default": {}, "paper": PAPER_SETTINGS}

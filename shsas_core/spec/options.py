@@ -47,13 +47,15 @@ AVERAGE_LAST_HELP = ("the neural field returned is the uniform average of its we
 #: Samples along each TX ray whose field gradients make the Lambertian term's normal (docs/neural.md,
 #: "The Lambertian term and its normal").
 NormalWindow = Annotated[int, Field(ge=1, le=16)]
-NORMAL_WINDOW = 1
+#: 5 since the surface protocol: measured against 1 by the fidelity benchmark (docs/decisions/
+#: lambertian-normal-window.md, "Revision"); the paper's 1 is in ``--preset paper``.
+NORMAL_WINDOW = 5
 NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "
                       "samples along its TX ray, ending at the sample (bins of one range window, so meant for "
                       "forward psf); 1: the sample's own gradient (the paper). A thin shell's own gradient "
                       "vanishes at its ridge and points back at the sonar past it, so only the near flank "
-                      "is lit and the fit builds a double sheet; 3-5 give one sharper sheet but a lower "
-                      "point-cloud F1 on solid scenes (docs/neural.md)")
+                      "is lit and the fit builds a double sheet; a window lights the ridge and gives one "
+                      "sheet (docs/neural.md)")
 
 CoarseToFine = Annotated[float, Field(gt=0, le=1)]
 #: Coarse-to-fine starts with the hash levels of resolution up to this on (8 of the ``cpu``

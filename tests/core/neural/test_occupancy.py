@@ -13,6 +13,7 @@ from shsas_core.neural.fields import HashEncodingConfig, SHField
 from shsas_core.neural.fields.config import FieldConfig
 from shsas_core.neural.fields.occupancy import MaskedField, OccupancyConfig, OccupancyGrid
 from shsas_core.neural.fields.volume import field_volume
+from shsas_core.neural.render import RenderConfig
 from shsas_core.neural.train import TrainConfig, fit
 from shsas_core.simulation.simulate import simulate_shape
 
@@ -97,7 +98,11 @@ def test_fit_with_a_full_mask_matches_the_plain_fit() -> None:
     survey = simulate_shape("sphere", heights=2, angles=12, snr_db=30.0, seed=0)
     s = survey.samples.astype(np.complex64)
     box = survey.meta.scene_box
-    cfg = TrainConfig(iters=4, num_bins=16, num_rays=64, seed=0)
+    # the paper's normal: the masked field evaluates a subset of the points, so its floats round
+    # differently, and a window's normalised sums of the untrained field's near-zero gradients
+    # amplify that (with the default window the two fits agree at steps 1-2, to 1e-3 at step 3 and
+    # 2 % at step 4); the mask's own claim is checked where the rounding stays rounding
+    cfg = TrainConfig(iters=4, num_bins=16, num_rays=64, seed=0, render=RenderConfig(normal_window=1))
     losses = []
     for occ in (None, OccupancyGrid.full(Grid.over(box, 16))):
         torch.manual_seed(0)

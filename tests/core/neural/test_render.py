@@ -169,7 +169,8 @@ def _geom(tx, rx, center):
     return PingGeometry(tx, rx, axis, torch.full((tx.shape[0],), 0.15, dtype=tx.dtype))
 
 
-def test_renderer_gradcheck_float64():
+@pytest.mark.parametrize("window", [1, 5])  # the paper's normals and the default window
+def test_renderer_gradcheck_float64(window):
     field = ShellField(width=0.02)
     tx = torch.tensor([[0.6, 0.0, 0.15], [0.0, 0.5, 0.05]], dtype=D)
     rx = tx + torch.tensor([[0.01, 0.0, -0.04], [0.0, 0.02, 0.03]], dtype=D)
@@ -177,7 +178,7 @@ def test_renderer_gradcheck_float64():
     dist_c = (field.center.detach() - tx).norm(dim=-1)
     radii = 2 * dist_c[:, None] + torch.linspace(-0.12, -0.06, 4, dtype=D)[None, :]
     g = torch.Generator().manual_seed(0)
-    cfg = RenderConfig(num_rays=12)
+    cfg = RenderConfig(num_rays=12, normal_window=window)
     from shsas_core.neural.render import cone_directions as cd
 
     dirs, omega = cd(geom.axis, geom.half_angle, 12, g)
@@ -294,7 +295,8 @@ def test_baseband_surveys_render_in_their_own_convention():
     assert np.allclose(b[0], a[0] * np.exp(-2j * np.pi * 20e3 * t), rtol=1e-4, atol=1e-6 * np.abs(a).max())
 
 
-def test_renderer_gradcheck_with_a_tiny_shfield_float64():
+@pytest.mark.parametrize("window", [1, 5])  # the paper's normals and the default window
+def test_renderer_gradcheck_with_a_tiny_shfield_float64(window):
     """Gradients of the rendered bins w.r.t. the SH field's output layer (through scattering,
     density/transmittance and the normals of the Lambertian term) match finite differences."""
     from shsas_core.neural.fields import HashEncodingConfig, SHField
@@ -317,7 +319,8 @@ def test_renderer_gradcheck_with_a_tiny_shfield_float64():
 
     def fn(weight):
         last.weight = weight
-        return render_samples(f, geom, radii, dirs, omega, RenderConfig(num_rays=6), create_graph=True)["signal"]
+        return render_samples(f, geom, radii, dirs, omega, RenderConfig(num_rays=6, normal_window=window),
+                             create_graph=True)["signal"]
 
     assert fn(inp).abs().min() > 0
     assert torch.autograd.gradcheck(fn, (inp,), eps=1e-6, atol=1e-6, rtol=1e-4)
@@ -374,6 +377,54 @@ def test_normal_window_lights_the_ridge_of_a_thin_shell() -> None:
     assert torch.all(g4[8:] == 0)  # the far flank stays dark
 
 
+def test_windowed_normal_at_a_shell_ridge_points_outward_by_finite_differences() -> None:
+    # An oblique ray (not through the centre) crosses a thin Gaussian shell; sample 6 lies exactly
+    # on its ridge, where ∇|σ_DC| = 0. The paper's normal (W = 1) is then the zero vector and the
+    # Lambertian term 0. A window of 5 sums the gradients of the rising flank before the ridge:
+    # the normal is non-zero, points out of the shell and towards the sonar. The reference is
+    # central finite differences of the density, independent of autograd and of windowed_normals.
+    field = ShellField(center=(0.0, 0.0, 0.0), radius=0.05, width=0.004, amp=1.0, beta=0.0)
+    center = field.center.detach()
+    ridge_point = 0.05 * torch.tensor([math.cos(0.5) * math.cos(0.3), math.sin(0.5) * math.cos(0.3),
+                                       math.sin(0.3)], dtype=D)
+    tx = torch.tensor([[0.6, 0.05, 0.02]], dtype=D)
+    u = (ridge_point - tx[0]) / (ridge_point - tx[0]).norm()
+    geom = _geom(tx, tx.clone(), center[None])
+    dirs = u[None, None]
+    step = 0.0015  # m along the ray, about a fifth of the shell's ±2σ width
+    one_way = (ridge_point - tx[0]).norm() + step * torch.arange(-6, 4, dtype=D)
+    radii = (2 * one_way)[None]
+    window, ridge = 5, 6
+
+    def lit(w: int) -> dict[str, torch.Tensor]:
+        cfg = RenderConfig(num_rays=1, normal_window=w)
+        return render_samples(field, geom, radii, dirs, torch.ones(1, dtype=D), cfg, create_graph=False)
+
+    x = lit(window)["x"][0, :, 0]  # (K, 3) the samples
+    torch.testing.assert_close(x[ridge], ridge_point, rtol=0, atol=1e-12)
+
+    # reference: the density's central differences (h = 1e-6 m) at the window's samples, summed
+    h = 1e-6
+    eye = torch.eye(3, dtype=D) * h
+    with torch.no_grad():
+        fd = (field.dc_abs(x[:, None] + eye) - field.dc_abs(x[:, None] - eye)) / (2 * h)  # (K, 3) 1/m²
+    total = fd[ridge - window + 1: ridge + 1].sum(0)
+    want = -total / total.norm()
+
+    paper, windowed = lit(1), lit(window)
+    own = windowed["gradient"][0, :, 0]  # the field's own gradients, what the paper's normal is made of
+    torch.testing.assert_close(own, fd, rtol=0, atol=1e-6 * fd.norm(dim=-1).max())
+    assert own[ridge].norm() < 1e-9 * own[ridge - 2].norm()  # it vanishes on the ridge
+    assert torch.all(paper["lambertian"][0, ridge + 1:, 0] == 0)  # and past it the paper's term is dark
+    n = windowed_normals(windowed["gradient"], window)[0, ridge, 0]
+    torch.testing.assert_close(n, want, rtol=0, atol=1e-6)
+    outward = (x[ridge] - center) / (x[ridge] - center).norm()
+    assert float(n @ outward) > 0.5  # out of the shell, not along the ray only
+    assert float(n @ -u) > 0  # towards the sonar, so the ridge is lit
+    torch.testing.assert_close(windowed["lambertian"][0, ridge, 0], (want @ -u).clamp_min(0), rtol=0, atol=1e-6)
+    assert torch.all(windowed["lambertian"][0, ridge + 1: ridge + 3, 0] > 0.5)  # lit past the ridge too
+
+
 def test_render_transients_applies_the_normal_window_across_chunks() -> None:
     survey = _survey()
     field = ShellField(center=(0.0, 0.0, 0.1), radius=0.04, width=0.006, amp=50.0)
@@ -382,5 +433,6 @@ def test_render_transients_applies_the_normal_window_across_chunks() -> None:
     chunked = render_transients(field, survey, [0, 1], win, seed=7, bins_per_chunk=5)
     assert np.abs(one).max() > 0
     np.testing.assert_allclose(chunked, one, rtol=1e-5, atol=1e-6 * np.abs(one).max())
-    plain = render_transients(field, survey, [0, 1], RenderConfig(num_rays=300), seed=7, bins_per_chunk=1000)
+    plain = render_transients(field, survey, [0, 1], RenderConfig(num_rays=300, normal_window=1), seed=7,
+                              bins_per_chunk=1000)
     assert np.abs(plain - one).max() > 0.01 * np.abs(one).max()  # the window changes the render

@@ -63,7 +63,7 @@ def test_train_config_passes_every_spec_option():
     from shsas_core.methods.neural import train_config
 
     spec = ReconstructionSpec(iters=7, lr=0.5, lr_final=0.01, num_bins=5, num_rays=6, pings_per_batch=2,
-                              seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=5,
+                              seed=3, device="cpu", target="envelope", sparsity=2.0, normal_window=3,
                               coarse_to_fine=0.25, angular_prior=0.7, tv_density=0.1, tv_scatter=0.2,
                               tv_phase=0.3)
     cfg = train_config(spec)
@@ -74,6 +74,17 @@ def test_train_config_passes_every_spec_option():
     assert cfg.weights.angular == spec.angular_prior
     assert (cfg.weights.tv_density, cfg.weights.tv_scatter, cfg.weights.tv_phase) == (0.1, 0.2, 0.3)
 
+
+def test_the_lambertian_normal_is_windowed_by_default_and_the_papers_own_in_its_preset():
+    # the window lights a thin shell's ridge (test_render); --preset paper keeps the sample's own
+    # gradient, and both reach the renderer the trainer builds
+    from shsas_core.methods.neural import train_config
+    from shsas_core.spec.job import PAPER_SETTINGS
+    from shsas_core.spec.options import NORMAL_WINDOW
+
+    assert NORMAL_WINDOW > 1 and RenderConfig().normal_window == NORMAL_WINDOW
+    assert train_config(ReconstructionSpec()).render_config().normal_window == NORMAL_WINDOW
+    assert train_config(ReconstructionSpec(**PAPER_SETTINGS)).render_config().normal_window == 1
 
 def test_spec_encoding_names_the_encoding_presets():
     from shsas_core.neural.fields.encoding import PRESETS
