@@ -150,6 +150,19 @@ def write_board_record(board: dict, load_info: dict) -> Path:
     return records.write_record(rec)
 
 
+def _stage_log(t0: float):
+    """A pipeline progress callback that prints each new stage (warm start, fit, ...) with the
+    seconds since ``t0`` to stderr: where a long run's time goes."""
+    last: list[str] = [""]
+
+    def progress(fraction: float, stage: str, metrics: dict) -> None:
+        if stage != last[0]:
+            last[0] = stage
+            print(f"[{time.perf_counter() - t0:8.1f} s] {stage}", file=sys.stderr, flush=True)
+
+    return progress
+
+
 def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: int) -> dict:
     """Every method through the pipeline (the defaults, but for ``overrides``) on every
     ``angle_step``-th turntable step of every level, each scored by :func:`score_folder`."""
@@ -163,7 +176,7 @@ def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: i
     for step in angle_steps:
         idx = np.arange(full.num_pings).reshape(-1, per)[:, ::step].ravel()
         t = time.perf_counter()
-        res = run_pipeline(spec, full.subset(idx), out / f"angle_step_{step}")
+        res = run_pipeline(spec, full.subset(idx), out / f"angle_step_{step}", progress=_stage_log(t))
         wall = time.perf_counter() - t
         rows = score_folder(out / f"angle_step_{step}", yaw_starts)
         for r in rows:
