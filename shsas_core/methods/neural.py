@@ -91,7 +91,7 @@ def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any]:
             if spec.coarse_to_fine is not None:  # the start holds only the levels the fit starts with
                 field.set_active_levels(coarse_start_levels(fcfg.encoding))
             distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
-                    should_stop=ctx.should_stop, stage=f"warm start:{ctx.name}")
+                    should_stop=ctx.should_stop, stage=f"warm start:{ctx.name}", occupancy=occupancy)
     psf = None
     if spec.forward == "psf":
         from shsas_core.signal.deconv import point_spread
