@@ -142,8 +142,11 @@ def board_rows(board: dict) -> list[dict]:
 def write_board_record(board: dict, load_info: dict) -> Path:
     """The run as a result record (benchmarks/records.py), for docs/results.md's scoreboard."""
     steps = ",".join(str(s["angle_step"]) for s in board["subsets"])
+    # a run of some of the methods is its own record (runs of other methods do not overwrite it)
+    methods = board.get("overrides", {}).get("methods")
+    name = f"real-bunny-steps{steps}" + ("-" + "-".join(methods) if methods else "")
     rec = records.make_record(
-        "real_bunny", f"real-bunny-steps{steps}", "Real AirSAS bunny: every method at the defaults, "
+        "real_bunny", name, "Real AirSAS bunny: every method at the defaults, "
         "aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
         COLUMNS, board_rows(board), machine_info=records.machine(), load_info=load_info,
         notes=f"spec overrides: {board.get('overrides') or 'none'}; torch threads {board.get('threads')}")
