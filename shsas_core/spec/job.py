@@ -113,7 +113,7 @@ class ReconstructionSpec(BaseModel):
     occupancy: float | None = Field(
         0.05, ge=0, lt=1, description="occupancy grid of the neural methods: the field is evaluated "
         "(and can be non-zero) only where the backprojection image's normalised magnitude exceeds "
-        "this level, dilated by 2 voxels (shsas_core.neural.fields.occupancy; about 3x faster iterations); "
+        "this level (and occupancy_floor times the median), dilated by 2 voxels (shsas_core.neural.fields.occupancy; about 3x faster iterations); "
         "None: everywhere in the scene box, as in the paper")
     occupancy_floor: float = Field(
         2.0, ge=0, le=100, description="an occupied voxel must also exceed this multiple of the "
