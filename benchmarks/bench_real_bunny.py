@@ -145,9 +145,11 @@ def write_board_record(board: dict, load_info: dict) -> Path:
     # a run of some of the methods is its own record (runs of other methods do not overwrite it)
     methods = board.get("overrides", {}).get("methods")
     name = f"real-bunny-steps{steps}" + ("-" + "-".join(methods) if methods else "")
+    changed = {k: v for k, v in board.get("overrides", {}).items() if k != "methods"}
+    who = ", ".join(methods) if methods else "every method"
+    budget = "the defaults" + (" but " + ", ".join(f"{k} {v}" for k, v in changed.items()) if changed else "")
     rec = records.make_record(
-        "real_bunny", name, "Real AirSAS bunny: every method at the defaults, "
-        "aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
+        "real_bunny", name, f"Real AirSAS bunny: {who} at {budget}, aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
         COLUMNS, board_rows(board), machine_info=records.machine(), load_info=load_info,
         notes=f"spec overrides: {board.get('overrides') or 'none'}; torch threads {board.get('threads')}")
     return records.write_record(rec)
