@@ -142,12 +142,30 @@ def board_rows(board: dict) -> list[dict]:
 def write_board_record(board: dict, load_info: dict) -> Path:
     """The run as a result record (benchmarks/records.py), for docs/results.md's scoreboard."""
     steps = ",".join(str(s["angle_step"]) for s in board["subsets"])
+    # a run of some of the methods is its own record (runs of other methods do not overwrite it)
+    methods = board.get("overrides", {}).get("methods")
+    name = f"real-bunny-steps{steps}" + ("-" + "-".join(methods) if methods else "")
+    changed = {k: v for k, v in board.get("overrides", {}).items() if k != "methods"}
+    who = ", ".join(methods) if methods else "every method"
+    budget = "the defaults" + (" but " + ", ".join(f"{k} {v}" for k, v in changed.items()) if changed else "")
     rec = records.make_record(
-        "real_bunny", f"real-bunny-steps{steps}", "Real AirSAS bunny: every method at the defaults, "
-        "aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
+        "real_bunny", name, f"Real AirSAS bunny: {who} at {budget}, aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
         COLUMNS, board_rows(board), machine_info=records.machine(), load_info=load_info,
         notes=f"spec overrides: {board.get('overrides') or 'none'}; torch threads {board.get('threads')}")
     return records.write_record(rec)
+
+
+def _stage_log(t0: float):
+    """A pipeline progress callback that prints each new stage (warm start, fit, ...) with the
+    seconds since ``t0`` to stderr: where a long run's time goes."""
+    last: list[str] = [""]
+
+    def progress(fraction: float, stage: str, metrics: dict) -> None:
+        if stage != last[0]:
+            last[0] = stage
+            print(f"[{time.perf_counter() - t0:8.1f} s] {stage}", file=sys.stderr, flush=True)
+
+    return progress
 
 
 def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: int) -> dict:
@@ -163,7 +181,7 @@ def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: i
     for step in angle_steps:
         idx = np.arange(full.num_pings).reshape(-1, per)[:, ::step].ravel()
         t = time.perf_counter()
-        res = run_pipeline(spec, full.subset(idx), out / f"angle_step_{step}")
+        res = run_pipeline(spec, full.subset(idx), out / f"angle_step_{step}", progress=_stage_log(t))
         wall = time.perf_counter() - t
         rows = score_folder(out / f"angle_step_{step}", yaw_starts)
         for r in rows:

@@ -18,7 +18,7 @@ from shsas_core.common.errors import ShsasError
 OPTION_NAMES: dict[str, str] = {"deconvolution": "deconv", "num_bins": "bins", "num_rays": "rays",
                                 "holdout_fraction": "holdout"}
 #: Placeholders in the help for the options whose value has a name in the docs.
-_METAVARS: dict[str, str] = {"sh_degree": "L", "threshold": "TAU", "occupancy": "LEVEL",
+_METAVARS: dict[str, str] = {"sh_degree": "L", "threshold": "TAU", "occupancy": "LEVEL", "occupancy_floor": "FACTOR",
                              "sparsity": "WEIGHT", "angular_prior": "WEIGHT",
                              "tv_density": "WEIGHT", "tv_scatter": "WEIGHT", "tv_phase": "WEIGHT", "holdout_fraction": "FRACTION",
                              "average_last": "FRACTION", "normal_window": "SAMPLES",

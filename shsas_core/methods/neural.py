@@ -86,12 +86,12 @@ def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any]:
         fit_progress = sub_progress(progress, 0.25, 1.0)
         vol = ctx.image(sub_progress(progress, 0.0, 0.15))
         if spec.occupancy is not None:
-            occupancy = OccupancyGrid.from_volume(vol, OccupancyConfig(level=spec.occupancy))
+            occupancy = OccupancyGrid.from_volume(vol, OccupancyConfig(level=spec.occupancy, floor_factor=spec.occupancy_floor))
         if spec.init == "backprojection" and not (ckpt / CHECKPOINT_NAME).exists():
             if spec.coarse_to_fine is not None:  # the start holds only the levels the fit starts with
                 field.set_active_levels(coarse_start_levels(fcfg.encoding))
             distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
-                    should_stop=ctx.should_stop, stage=f"warm start:{ctx.name}")
+                    should_stop=ctx.should_stop, stage=f"warm start:{ctx.name}", occupancy=occupancy)
     psf = None
     if spec.forward == "psf":
         from shsas_core.signal.deconv import point_spread

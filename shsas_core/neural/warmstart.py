@@ -36,6 +36,7 @@ from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progre
 from shsas_core.data.volume import Volume
 from shsas_core.neural.fields.base import device_dtype
 from shsas_core.neural.fields.field import INV_SQRT_4PI
+from shsas_core.neural.fields.occupancy import OccupancyGrid
 
 
 class WarmStartConfig(BaseModel):
@@ -84,7 +85,7 @@ def sample_image(target: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
 
 def distill(field: torch.nn.Module, volume: Volume, config: WarmStartConfig | None = None,
             progress: ProgressFn = no_progress, should_stop: StopFn | None = None,
-            stage: str = "warm start") -> WarmStartResult:
+            stage: str = "warm start", occupancy: OccupancyGrid | None = None) -> WarmStartResult:
     """Regress the field's σ_DC onto ``volume`` (module doc); trains ``field`` in place.
 
     Args:
@@ -94,6 +95,11 @@ def distill(field: torch.nn.Module, volume: Volume, config: WarmStartConfig | No
             backprojection) or real (a magnitude).
         config: :class:`WarmStartConfig`.
         progress: ``progress(fraction, stage, {"loss"})`` per step. should_stop: polled per step.
+        occupancy: the mask the field will be trained and read through (``within(field,
+            occupancy)``), or None. Each step's random points outside it are dropped: the masked
+            model never reads the field there, so regressing it there only costs time (on a real
+            survey whose mask is a third of the box, two thirds of the work). A step with no
+            point inside is skipped; a mask over the whole box changes nothing.
     Returns:
         :class:`WarmStartResult`.
     """
@@ -110,6 +116,12 @@ def distill(field: torch.nn.Module, volume: Volume, config: WarmStartConfig | No
     for step in range(cfg.steps):
         check_stop(should_stop)
         u = torch.rand(cfg.batch, 3, generator=gen, dtype=torch.float64)
+        if occupancy is not None:
+            keep = occupancy.lookup((lo + u * size).to(occupancy.box_min.device))
+            if not bool(keep.all()):  # indexing only when needed: a full mask stays bit-identical
+                u = u[keep.cpu()]
+            if u.shape[0] == 0:
+                continue
         x = (lo + u * size).to(device, dtype)
         want = sample_image(target, u.to(device, torch.float32)).to(dtype)
         c00 = field.coefficients(x)[:, 0] * INV_SQRT_4PI
@@ -122,4 +134,5 @@ def distill(field: torch.nn.Module, volume: Volume, config: WarmStartConfig | No
         opt.step()
         history.append(float(loss.detach()))
         progress((step + 1) / cfg.steps, stage, {"loss": history[-1]})
-    return WarmStartResult(history, history[-1] / mean_sq if mean_sq > 0 else math.nan)
+    last = history[-1] if history else math.nan
+    return WarmStartResult(history, last / mean_sq if mean_sq > 0 else math.nan)

@@ -113,8 +113,13 @@ class ReconstructionSpec(BaseModel):
     occupancy: float | None = Field(
         0.05, ge=0, lt=1, description="occupancy grid of the neural methods: the field is evaluated "
         "(and can be non-zero) only where the backprojection image's normalised magnitude exceeds "
-        "this level, dilated by 2 voxels (shsas_core.neural.fields.occupancy; about 3x faster iterations); "
+        "this level (and occupancy_floor times the median), dilated by 2 voxels (shsas_core.neural.fields.occupancy; about 3x faster iterations); "
         "None: everywhere in the scene box, as in the paper")
+    occupancy_floor: float = Field(
+        2.0, ge=0, le=100, description="an occupied voxel must also exceed this multiple of the "
+        "image's median magnitude, its blur and clutter floor: on a real image that floor can lie "
+        "above the occupancy level, which alone would then mark the whole box "
+        "(docs/decisions/occupancy-floor.md); 0: the level alone")
     sparsity: SparsityWeight = Field(
         1.0, description="weight λ2 of the L1 sparsity prior on the neural field's "
         "density (the paper's L_sparse): it removes the low background the data term leaves in "

@@ -64,6 +64,31 @@ def test_from_volume_is_a_level_then_a_dilation() -> None:
         OccupancyGrid(grid, np.ones((3, 3, 3), bool))
 
 
+def test_the_floor_test_bounds_a_mask_that_the_level_alone_spreads_over_the_box() -> None:
+    """An image with a floor above the level (as a real backprojection has): the level alone marks
+    every voxel; with the floor test a voxel must also exceed floor_factor x the median
+    magnitude. On a clean image (floor below the level) the floor test changes nothing."""
+    grid = Grid(BOX.min, BOX.max, (10, 10, 10))
+    rng = np.random.default_rng(4)
+    mag = 0.1 + 0.02 * rng.random(grid.shape)  # a floor at about 0.1 of the peak
+    mag[2:4, 5:7, 1:3] = rng.uniform(0.3, 1.0, size=(2, 2, 2))  # the scene
+    vol = Volume(grid, (mag * np.exp(1j * rng.uniform(0, 6.3, size=grid.shape))).astype(np.complex64))
+    level_only = OccupancyGrid.from_volume(vol, OccupancyConfig(level=0.05, dilate_voxels=0, floor_factor=0))
+    assert level_only.mask.all()
+    occ = OccupancyGrid.from_volume(vol, OccupancyConfig(level=0.05, dilate_voxels=0, floor_factor=2.0))
+    want = (mag > 0.05 * mag.max()) & (mag > 2.0 * np.median(mag))  # numpy's own median of |image|
+    np.testing.assert_array_equal(occ.mask.numpy(), want)
+    assert occ.fraction == pytest.approx(8 / 1000)
+    clean = np.zeros(grid.shape)
+    clean[2:4, 5:7, 1:3] = mag[2:4, 5:7, 1:3]
+    clean += 1e-3 * rng.random(grid.shape)
+    cvol = Volume(grid, clean.astype(np.complex64))
+    for dil in (0, 1):
+        a = OccupancyGrid.from_volume(cvol, OccupancyConfig(level=0.05, dilate_voxels=dil))
+        b = OccupancyGrid.from_volume(cvol, OccupancyConfig(level=0.05, dilate_voxels=dil, floor_factor=0))
+        np.testing.assert_array_equal(a.mask.numpy(), b.mask.numpy())
+
+
 def test_masked_field_is_the_field_inside_and_empty_outside() -> None:
     field = _field()
     grid = Grid(BOX.min, BOX.max, (10, 10, 10))

@@ -14,6 +14,7 @@ from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import Grid, Volume
 from shsas_core.neural.fields import HashEncodingConfig, SHField
 from shsas_core.neural.fields.config import FieldConfig
+from shsas_core.neural.fields.occupancy import OccupancyConfig, OccupancyGrid
 from shsas_core.neural.warmstart import (
     INV_SQRT_4PI,
     WarmStartConfig,
@@ -57,6 +58,47 @@ def test_image_target_scales_peak_and_keeps_phase() -> None:
     assert float(t[0, 1, 1, 2, 3]) == pytest.approx(3.0) and float(t[0, 0, 0, 0, 0]) == pytest.approx(-1.5)
     with pytest.raises(ShsasError, match="all zero"):
         image_target(Volume(grid, np.zeros(grid.shape, np.complex64)), 1.0)
+
+
+def test_distill_inside_a_mask_reads_the_field_only_there_and_a_full_mask_changes_nothing() -> None:
+    box = SceneBox(min=(-0.1, -0.1, 0.0), max=(0.1, 0.1, 0.2))
+    grid = Grid.over(box, 24)
+    vol = Volume(grid, _blob(grid))
+    occ = OccupancyGrid.from_volume(vol, OccupancyConfig(level=0.2, dilate_voxels=1))
+    assert 0.01 < occ.fraction < 0.5
+    cfg = WarmStartConfig(steps=150, batch=4096, peak=2.0)
+
+    def started(occupancy: OccupancyGrid | None) -> tuple[SHField, list[torch.Tensor]]:
+        torch.manual_seed(0)
+        field = SHField(FieldConfig(sh_degree=1, scene_box=box, encoding=SMALL))
+        seen: list[torch.Tensor] = []
+        read = field.coefficients
+
+        def coefficients(x: torch.Tensor) -> torch.Tensor:
+            seen.append(x.detach().clone())
+            return read(x)
+
+        field.coefficients = coefficients  # type: ignore[method-assign]
+        distill(field, vol, cfg, occupancy=occupancy)
+        field.coefficients = read  # type: ignore[method-assign]
+        return field, seen
+
+    plain, _ = started(None)
+    full, _ = started(OccupancyGrid.full(grid))
+    for a, b in zip(plain.parameters(), full.parameters(), strict=True):
+        assert torch.equal(a, b)
+    masked, seen = started(occ)
+    pts = torch.cat(seen)
+    assert bool(occ.lookup(pts).all())  # every point regressed lies in the mask
+    assert 0.5 * occ.fraction < len(pts) / (cfg.steps * cfg.batch) < 2 * occ.fraction
+    # inside the mask it reproduces the image as well as the plain start does
+    inside = occ.mask.numpy().ravel()
+    x = torch.from_numpy(grid.points()[inside]).float()
+    want = 2.0 * vol.values.ravel()[inside] / np.abs(vol.values).max()
+    with torch.no_grad():
+        err = {name: np.linalg.norm(f.coefficients(x)[:, 0].numpy() * INV_SQRT_4PI - want) / np.linalg.norm(want)
+               for name, f in (("plain", plain), ("masked", masked))}
+    assert err["masked"] < max(0.25, 1.5 * err["plain"]), err
 
 
 def test_distill_reproduces_a_complex_image() -> None:

@@ -10,6 +10,7 @@ import typing
 import pytest
 
 from shsas_core.cli.spec_options import bounds_text, option_name, value_schema
+from shsas_core.neural.fields.occupancy import OccupancyConfig
 from shsas_core.neural.render import RenderConfig
 from shsas_core.neural.train import TrainConfig
 from shsas_core.spec.job import ReconstructionSpec, spec_json_schema
@@ -27,6 +28,7 @@ SHARED = {
     "pings_per_batch": (TrainConfig, "pings_per_batch"), "seed": (TrainConfig, "seed"),
     "device": (TrainConfig, "device"), "target": (TrainConfig, "target"),
     "normal_window": (RenderConfig, "normal_window"), "coarse_to_fine": (TrainConfig, "coarse_to_fine"),
+    "occupancy_floor": (OccupancyConfig, "floor_factor"),
 }
 #: LossWeights.sparsity is a plain weight (>= 0, tests use 1000); the spec caps it at 100 for users.
 _BOUND_KEYS = ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum", "pattern", "enum", "type")
@@ -68,6 +70,8 @@ def test_train_config_passes_every_spec_option():
                               tv_phase=0.3)
     cfg = train_config(spec)
     for field, (model, name) in SHARED.items():
+        if model is OccupancyConfig:  # handed to the occupancy grid, not to the trainer
+            continue
         owner = cfg.render_config() if model is RenderConfig else cfg
         assert getattr(owner, name) == getattr(spec, field), field
     assert cfg.weights.sparsity == spec.sparsity
