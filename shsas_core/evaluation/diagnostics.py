@@ -93,9 +93,14 @@ class ResultWarning(BaseModel):
 
 
 def relative_spread(volume: Volume) -> float:
-    """``(max - min) / max`` of the finite magnitudes of ``volume``; 0 when none is positive."""
+    """``(max - min) / max`` of the finite, nonzero magnitudes of ``volume``; 0 when none is positive.
+
+    Exact zeros are left out: they are voxels the method did not reconstruct (a neural field is
+    empty outside its occupancy mask), so an untrained field inside a mask is as flat as one
+    without it. Arithmetic on real data does not land on exactly 0 elsewhere, and a volume that
+    is 0 everywhere still measures 0."""
     m = volume.magnitude()
-    m = m[np.isfinite(m)]
+    m = m[np.isfinite(m) & (m != 0)]
     if m.size == 0:
         return 0.0
     hi = float(m.max())

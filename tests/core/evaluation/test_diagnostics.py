@@ -50,6 +50,20 @@ def test_a_constant_volume_is_collapsed(values: np.ndarray) -> None:
     assert found[0].measure < COLLAPSE_SPREAD_LIMIT == found[0].limit
 
 
+def test_an_untrained_field_inside_an_occupancy_mask_is_collapsed() -> None:
+    # a masked field is exactly 0 outside its mask: the step at the mask's edge is not a reconstruction
+    inside = np.linalg.norm(GRID.points(), axis=1).reshape(GRID.shape) < 0.09
+    values = np.where(inside, 0.0089 * (1 + 0.003 * np.random.default_rng(4).random(GRID.shape)), 0.0)
+    found = checked(values)
+    assert [w.code for w in found] == ["collapsed"]
+    assert found[0].measure < COLLAPSE_SPREAD_LIMIT
+
+
+def test_a_shell_inside_an_occupancy_mask_is_not_collapsed() -> None:
+    inside = np.linalg.norm(GRID.points(), axis=1).reshape(GRID.shape) < 0.09
+    assert checked(np.where(inside, shell(), 0.0)) == []
+
+
 def test_complex_volumes_are_checked_by_magnitude() -> None:
     # a constant magnitude under a varying phase is still nothing
     phase = np.exp(1j * np.random.default_rng(2).uniform(0, 2 * np.pi, GRID.shape))
