@@ -41,10 +41,14 @@ $(CONSOLE): $(CONSOLE_SRC)
 
 console: $(CONSOLE)
 
+# the whole suite in two runs: the science on two pytest-xdist workers (as test-fast), then the
+# service tests on their own, whose Redis, PostgreSQL, Celery worker and browser processes would
+# otherwise share the two cores with a training test and time out.
 test: $(STAMP) $(CONSOLE)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -m "not service" -n 2 --dist loadfile
+	$(BIN)/python -m pytest -q -m service
 
 # the inner loop: everything but the slow and the service tests (no Redis, PostgreSQL or browser),
 # on two pytest-xdist workers of one torch thread each (tests/conftest.py): most of the suite is
