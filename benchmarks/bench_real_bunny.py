@@ -144,8 +144,10 @@ def write_board_record(board: dict, load_info: dict) -> Path:
     steps = ",".join(str(s["angle_step"]) for s in board["subsets"])
     # a run of some of the methods is its own record (runs of other methods do not overwrite it)
     methods = board.get("overrides", {}).get("methods")
-    name = f"real-bunny-steps{steps}" + ("-" + "-".join(methods) if methods else "")
     changed = {k: v for k, v in board.get("overrides", {}).items() if k != "methods"}
+    # ... and so is a run away from the defaults (an A/B arm must not overwrite the scoreboard's row)
+    name = (f"real-bunny-steps{steps}" + ("-" + "-".join(methods) if methods else "")
+            + "".join(f"-{k.replace('_', '-')}-{v}" for k, v in changed.items()))
     who = ", ".join(methods) if methods else "every method"
     budget = "the defaults" + (" but " + ", ".join(f"{k} {v}" for k, v in changed.items()) if changed else "")
     rec = records.make_record(
@@ -211,6 +213,8 @@ def main() -> None:
     ap.add_argument("--methods", default=None, help="scoreboard: methods (default: all)")
     ap.add_argument("--iters", type=int, default=None, help="scoreboard: override the default iterations")
     ap.add_argument("--spec-grid", type=int, default=None, help="scoreboard: override the default grid")
+    ap.add_argument("--spec", default=None, metavar="JSON",
+                    help='scoreboard: override any spec field, e.g. \'{"normal_window": 1}\' (named in the record)')
     args = ap.parse_args()
     import torch
     import trimesh
@@ -226,6 +230,8 @@ def main() -> None:
             overrides["iters"] = args.iters
         if args.spec_grid:
             overrides["grid"] = args.spec_grid
+        if args.spec:
+            overrides.update(json.loads(args.spec))
         load_info = records.load()
         board = scoreboard(Path(args.scoreboard), [int(k) for k in args.angle_steps.split(",")], overrides,
                            args.yaw_starts)
