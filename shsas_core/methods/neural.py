@@ -34,7 +34,7 @@ def fit_field(ctx: MethodContext) -> MethodResult:
     """Fit the method's field (degree from the catalogue) and sample it on ``ctx.grid``."""
     from shsas_core.neural.fields.volume import field_volume
 
-    field, result = _fit(ctx, sub_progress(ctx.progress, 0.0, 0.8))
+    field, result, window = _fit(ctx, sub_progress(ctx.progress, 0.0, 0.8))
     loss_curve = _loss_curve(result.loss_history)
     warns = fit_warnings(result.data_loss_history)
     check_stop(ctx.should_stop)
@@ -45,7 +45,7 @@ def fit_field(ctx: MethodContext) -> MethodResult:
     scored = _evenly(ctx.held_idx, _MAX_NOVEL_PINGS)
     fit_pings = scored if len(scored) else _evenly(ctx.train_idx, _FIT_PINGS)
     check_stop(ctx.should_stop)
-    pred = _render(field, ctx.survey, fit_pings, ctx.spec, amplitude, ctx.device)
+    pred = _render(field, ctx.survey, fit_pings, ctx.spec, amplitude, ctx.device, window)
     signal_errs: dict[str, float] = {}
     if len(ctx.held_idx):
         from shsas_core.neural.render import signal_errors
@@ -58,14 +58,15 @@ def fit_field(ctx: MethodContext) -> MethodResult:
                         signal_fit=fit_fig, warnings=warns, record=result.to_json())
 
 
-def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any]:
+def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any, int]:
     """Build the SH field, start it from the backprojection image when ``spec.init`` says so,
     and fit it to the training pings' s_PD (checkpointed under ``ctx.checkpoint_dir``; a
     compatible checkpoint there is resumed, and then holds the started field already).
 
     Returns:
         (the field as it was trained, i.e. inside its occupancy mask when there is one;
-        :class:`~shsas_core.neural.train.FitResult`).
+        :class:`~shsas_core.neural.train.FitResult`; the Lambertian normal's window it was
+        trained with, :func:`normal_window`).
     """
     import torch
 
@@ -98,16 +99,28 @@ def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any]:
         from shsas_core.signal.sources import deconv_config
 
         psf = point_spread(survey, deconv_config(spec))
-    result = fit(field, survey, ctx.signals, train_config(spec), progress=fit_progress,
+    window = normal_window(spec, psf)
+    result = fit(field, survey, ctx.signals, train_config(spec, window), progress=fit_progress,
                  should_stop=ctx.should_stop, checkpoint_dir=ckpt, ping_indices=ctx.train_idx,
                  stage=f"fit:{ctx.name}", psf=psf, occupancy=occupancy)
     # the model is the field inside its mask: render and extract it as it was trained
-    return within(field, occupancy), result
+    return within(field, occupancy), result, window
 
 
-def train_config(spec: ReconstructionSpec) -> Any:
-    """The trainer's config from the job spec. Every key is a TrainConfig field: a name that is
-    not (a renamed field, say) fails here instead of being dropped."""
+def normal_window(spec: ReconstructionSpec, psf: Any) -> int:
+    """The Lambertian normal's window a fit uses: the spec's where the trainer renders whole
+    range windows (a point-spread kernel ``psf``), 1 under the impulse model (``psf`` None).
+
+    The impulse model's bins are drawn apart along each ray, so a sum of gradients over several
+    of them is no finite difference. It is also what ``forward = "psf"`` falls back to on
+    pre-deconvolved pings (a real AirSAS folder), which have no kernel."""
+    return spec.normal_window if psf is not None else 1
+
+
+def train_config(spec: ReconstructionSpec, window: int | None = None) -> Any:
+    """The trainer's config from the job spec (``window``: the normal window, if not the spec's:
+    :func:`normal_window`). Every key is a TrainConfig field: a name that is not (a renamed
+    field, say) fails here instead of being dropped."""
     from shsas_core.neural.render import RenderConfig
     from shsas_core.neural.train import LossWeights, TrainConfig
 
@@ -117,16 +130,17 @@ def train_config(spec: ReconstructionSpec) -> Any:
         target=spec.target, pings_per_batch=spec.pings_per_batch,
         device=spec.device, weights=LossWeights(sparsity=spec.sparsity, angular=spec.angular_prior, tv_density=spec.tv_density,
                             tv_scatter=spec.tv_scatter, tv_phase=spec.tv_phase),
-        render=RenderConfig(normal_window=spec.normal_window),
+        render=RenderConfig(normal_window=spec.normal_window if window is None else window),
         # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
         checkpoint_every=max(10, min(500, spec.iters // 10)))
 
 
 def _render(field: Any, survey: Survey, pings: np.ndarray, spec: ReconstructionSpec, amplitude: float,
-            device: Any) -> np.ndarray:
+            device: Any, window: int) -> np.ndarray:
+    """Whole pings rendered as the field was trained (``window``: its normal window)."""
     from shsas_core.neural.render import RenderConfig, render_transients
 
-    cfg = RenderConfig(num_rays=min(spec.num_rays, MAX_SCORING_RAYS), normal_window=spec.normal_window)
+    cfg = RenderConfig(num_rays=min(spec.num_rays, MAX_SCORING_RAYS), normal_window=window)
     return render_transients(field, survey, pings, cfg, amplitude=amplitude, device=device, seed=spec.seed)
 
 

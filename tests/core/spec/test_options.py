@@ -90,6 +90,21 @@ def test_the_lambertian_normal_is_windowed_by_default_and_the_papers_own_in_its_
     assert train_config(ReconstructionSpec()).render_config().normal_window == NORMAL_WINDOW
     assert train_config(ReconstructionSpec(**PAPER_SETTINGS)).render_config().normal_window == 1
 
+def test_the_impulse_forward_model_fits_with_the_samples_own_normal():
+    # its bins are drawn apart along each ray: a window of them is no finite difference, and the
+    # pre-deconvolved pings of a real folder get that model under forward = "psf" too
+    import torch
+
+    from shsas_core.methods.neural import normal_window, train_config
+    from shsas_core.spec.options import NORMAL_WINDOW
+
+    spec = ReconstructionSpec()
+    assert normal_window(spec, torch.ones(5)) == NORMAL_WINDOW
+    assert normal_window(spec, None) == 1
+    assert train_config(spec, normal_window(spec, None)).render_config().normal_window == 1
+    assert normal_window(ReconstructionSpec(normal_window=3), torch.ones(5)) == 3
+
+
 def test_spec_encoding_names_the_encoding_presets():
     from shsas_core.neural.fields.encoding import PRESETS
 
