@@ -6,6 +6,7 @@ workers' lower CPU priority.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -386,7 +387,14 @@ LAUNCHER = ("import os, sys\ntry:\n    os.setpriority(os.PRIO_PROCESS, 0, 0)\nex
 
 
 def _children(pid: int) -> list[int]:
-    return [int(c) for t in Path(f"/proc/{pid}/task").iterdir() for c in (t / "children").read_text().split()]
+    """The child pids of every thread of ``pid``; [] once it has gone."""
+    kids: list[int] = []
+    with contextlib.suppress(FileNotFoundError):
+        for t in Path(f"/proc/{pid}/task").iterdir():
+            # a thread can end between the listing and the read (celery's start-up threads do)
+            with contextlib.suppress(FileNotFoundError):
+                kids += [int(c) for c in (t / "children").read_text().split()]
+    return kids
 
 
 def test_celery_pool_child_runs_at_lower_priority(tmp_path, redis_url) -> None:
