@@ -90,6 +90,7 @@ def test_the_lambertian_normal_is_windowed_by_default_and_the_papers_own_in_its_
     assert train_config(ReconstructionSpec()).render_config().normal_window == NORMAL_WINDOW
     assert train_config(ReconstructionSpec(**PAPER_SETTINGS)).render_config().normal_window == 1
 
+
 def test_the_impulse_forward_model_fits_with_the_samples_own_normal():
     # its bins are drawn apart along each ray: a window of them is no finite difference, and the
     # pre-deconvolved pings of a real folder get that model under forward = "psf" too
