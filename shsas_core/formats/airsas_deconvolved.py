@@ -16,8 +16,7 @@ Conversions (the authors' ``airsas/utils.py`` and backprojection, as the data RE
   each widened by ``widen_m`` and by ``widen_samples/raw_fs·c``. On our time axis that is
   ``t0 = MIN_DIST / c`` and ``fs = (T−1)·c / (MAX_DIST − MIN_DIST)``;
 * the rows are made complex by a Hilbert transform (``signal_kind = "analytic"``) and the
-  survey is marked ``pulse_deconvolved``, so no stage deconvolves them again (they are only
-  projected onto the pulse's band: :func:`~shsas_core.signal.deconv.deconvolve`).
+  survey is marked ``pulse_deconvolved``, so no stage deconvolves them again.
 """
 
 from __future__ import annotations

@@ -112,8 +112,8 @@ def normal_window(spec: ReconstructionSpec, psf: Any) -> int:
     range windows (a point-spread kernel ``psf``), 1 under the impulse model (``psf`` None).
 
     The impulse model's bins are drawn apart along each ray, so a sum of gradients over several
-    of them is no finite difference. It is also what ``forward = "psf"`` falls back to where
-    the deconvolution has no kernel (``deconvolution = "none"``)."""
+    of them is no finite difference. It is also what ``forward = "psf"`` falls back to on
+    pre-deconvolved pings (a real AirSAS folder), which have no kernel."""
     return spec.normal_window if psf is not None else 1
 
 

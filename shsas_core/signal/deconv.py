@@ -204,24 +204,15 @@ def deconvolve(
     Returns:
         (N, T) complex64 on the survey's own time axis (``survey.t0``, ``meta.fs``), analytic
         passband for real/analytic surveys, baseband for baseband surveys.
-        A ``meta.pulse_deconvolved`` survey is not deconvolved again: its analytic signal is
-        projected onto the pulse's band with the chain's taper (:func:`band_filter`), whatever
-        the method (``"none"``: as it came).
+        A ``meta.pulse_deconvolved`` survey gets its analytic signal whatever ``config`` says.
     """
     config = config or DeconvConfig()
     s = analytic_samples(survey, should_stop)
     check_stop(should_stop)
-    if config.method == "none":
+    # samples deconvolved before import: a second deconvolution would divide the pulse out twice
+    if config.method == "none" or survey.meta.pulse_deconvolved:
         progress(1.0, "deconvolution", {})
         return s
-    if survey.meta.pulse_deconvolved:
-        # deconvolved before import: a second deconvolution would divide the pulse out twice, but
-        # their deconvolution left energy outside the pulse's band, where no echo has any; the
-        # band and taper our own chain ends in make their point spread ours (point_spread)
-        out = band_filter(s, survey.meta.fs, signal_band(survey), taper=config.taper,
-                          taper_param=config.taper_param, should_stop=should_stop)
-        progress(1.0, "deconvolution", {})
-        return out
     if config.method == "wiener":
         out = np.empty_like(s)
         n = s.shape[0]
@@ -262,23 +253,23 @@ def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width:
         half_width: ``h``; the kernel has ``2h + 1`` taps (lags -h..h samples).
     Returns:
         (2h + 1,) complex128 with unit value at lag 0 (index h), or None for ``method="none"``
-        (the raw echo is a whole chirp, not a compact kernel). A ``meta.pulse_deconvolved``
-        survey's kernel is its band projection's (:func:`deconvolve`).
+        (the raw echo is a whole chirp, not a compact kernel) and for ``meta.pulse_deconvolved``
+        surveys.
     """
     cfg = config or DeconvConfig()
-    if cfg.method == "none":
-        return None
+    if cfg.method == "none" or survey.meta.pulse_deconvolved:
+        return None  # pre-deconvolved data: their kernel is unknown, the ideal impulse is assumed
     rep = replica_in_frame(survey)
     # a record as long as the survey's, so the FFT filters are sampled as they are on the data
     n = max(survey.num_samples, rep.size + 4 * half_width + 1)
     at = max(half_width, (n - rep.size) // 2)
     lo, hi = signal_band(survey)
     frame = np.zeros((1, n), np.complex128)
-    if cfg.method == "wiener" and not survey.meta.pulse_deconvolved:
+    if cfg.method == "wiener":
         frame[0, at : at + rep.size] = rep[: n - at]
         out = wiener_deconvolve(frame, rep, survey.meta.fs, (lo, hi), noise_level=cfg.noise_level,
                                 taper=cfg.taper, taper_param=cfg.taper_param)[0]
-    else:  # the neural deconvolution's target, and pre-deconvolved pings: an impulse projected onto the band
+    else:  # the neural deconvolution's target is an impulse, projected onto the band
         frame[0, at] = 1.0
         out = band_filter(frame, survey.meta.fs, (lo, hi), taper=cfg.taper, taper_param=cfg.taper_param)[0]
     k = out[at - half_width : at + half_width + 1].astype(np.complex128)

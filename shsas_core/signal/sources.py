@@ -10,7 +10,7 @@ source         signals (N, T) complex64 on the survey's time axis
                shape), else ``deconvolve``
 ``stored``     the stored ``extras/deconvolved``; an error when the survey has none
 ``deconvolve`` the pulse deconvolution ``config`` asks for, computed now (default Wiener; a
-               ``meta.pulse_deconvolved`` survey its band projection, ``method="none"`` its analytic
+               ``meta.pulse_deconvolved`` survey, or ``method="none"``, gives its analytic
                samples: :func:`~shsas_core.signal.deconv.deconvolve`)
 ``matched``    the matched filter (correlation with the pulse replica)
 ``raw``        the analytic signal of the samples

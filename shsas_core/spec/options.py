@@ -52,7 +52,7 @@ NormalWindow = Annotated[int, Field(ge=1, le=16)]
 NORMAL_WINDOW = 5
 NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "
                       "samples along its TX ray, ending at the sample (bins of one range window: under the impulse "
-                      "forward model, chosen or without a deconvolution kernel, the fit uses 1); 1: the sample's own "
+                      "forward model, chosen or on pre-deconvolved pings, the fit uses 1); 1: the sample's own "
                       "gradient (the paper). A thin shell's own gradient "
                       "vanishes at its ridge and points back at the sonar past it, so only the near flank "
                       "is lit and the fit builds a double sheet; a window lights the ridge and gives one "

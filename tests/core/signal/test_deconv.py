@@ -230,28 +230,6 @@ def test_point_spread_is_the_deconvolved_echo_of_a_point(kind):
     assert point_spread(s, DeconvConfig(method="none")) is None
 
 
-def test_pre_deconvolved_pings_are_brought_to_the_band_and_their_kernel_is_the_chains() -> None:
-    """Pings deconvolved before import are not deconvolved again; what lies outside the pulse's
-    band (a 40 kHz tone here) goes, and a point echo comes out as point_spread's kernel."""
-    k0, h, t = 250, 8, 800
-    s = _trace_survey([T0 + k0 / FS], [1.0], t=t)
-    x = np.zeros((2, t))
-    x[:, k0] = 1.0  # a deconvolved point echo: an impulse
-    tone = 0.5 * np.hanning(t) * np.cos(2 * np.pi * 40e3 * np.arange(t) / FS)  # zero at the ends: no leak
-    s = Survey(tx=s.tx, rx=s.rx, samples=(x + tone).astype(np.float32), t0=s.t0,
-               meta=s.meta.model_copy(update={"pulse_deconvolved": True}), pulse=s.pulse)
-    y = deconvolve(s, DeconvConfig(method="wiener"))[0].astype(np.complex128)
-    spec = np.abs(np.fft.fft(y, 4096))
-    f = np.fft.fftfreq(4096, 1 / FS)
-    assert spec[np.abs(f - 40e3) < 2e3].max() < 1e-2 * spec.max()
-    kernel = point_spread(s, DeconvConfig(method="wiener"), half_width=h)
-    np.testing.assert_allclose(kernel, y[k0 - h : k0 + h + 1] / y[k0], atol=1e-3)
-    # method none keeps the pings as they came (the analytic signal), and has no kernel
-    none = deconvolve(s, DeconvConfig(method="none"))[0]
-    assert np.abs(np.fft.fft(none, 4096))[np.abs(f - 40e3) < 2e3].max() > 0.1 * np.abs(np.fft.fft(none, 4096)).max()
-    assert point_spread(s, DeconvConfig(method="none")) is None
-
-
 def test_deconvolution_of_long_pings_polls_inside_the_step() -> None:
     """Wiener deconvolution of 12 pings of a million samples: the analytic signal and the filter
     each poll between blocks of four rows, so a cancel lands inside the step (it used to be

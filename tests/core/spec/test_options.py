@@ -92,8 +92,8 @@ def test_the_lambertian_normal_is_windowed_by_default_and_the_papers_own_in_its_
 
 
 def test_the_impulse_forward_model_fits_with_the_samples_own_normal():
-    # its bins are drawn apart along each ray: a window of them is no finite difference, and a
-    # deconvolution without a kernel (none) gets that model under forward = "psf" too
+    # its bins are drawn apart along each ray: a window of them is no finite difference, and the
+    # pre-deconvolved pings of a real folder get that model under forward = "psf" too
     import torch
 
     from shsas_core.methods.neural import normal_window, train_config
