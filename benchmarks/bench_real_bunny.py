@@ -128,9 +128,67 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
 
 #: The real-data scoreboard's columns (a row per method and ping subset).
 COLUMNS = [["row", "method / pings", ""], ["chamfer_l2", "aligned Chamfer-L2 (m²)", "{:.3e}"],
-           ["fscore", "F@5mm", "{:.3f}"], ["fscore_2_5mm", "F@2.5mm", "{:.3f}"],
+           ["chamfer_l2_accuracy", "cloud→mesh half", "{:.2e}"],
+           ["chamfer_l2_completeness", "mesh→cloud half", "{:.2e}"],
+           ["fscore", "F@5mm", "{:.3f}"], ["fscore_precision", "precision", "{:.2f}"],
+           ["fscore_recall", "recall", "{:.2f}"], ["fscore_2_5mm", "F@2.5mm", "{:.3f}"],
            ["mesh_pieces", "mesh pieces", "{:d}"], ["mesh_area_ratio", "area ratio", "{:.2f}"],
            ["seconds", "method wall s", "{:.0f}"]]
+
+#: What the real data must show (SH-SAS against backprojection at the defaults).
+CHAMFER_RATIO_GOAL = 0.8
+FSCORE_MARGIN_GOAL = 0.05
+MAX_MESH_PIECES = 3
+MAX_NEURAL_SECONDS = 15 * 60
+
+
+def goal_checks(rows: list[dict]) -> list[str]:
+    """PASS/FAIL lines for one ping subset's scored methods (rows of :func:`score_folder`, with
+    ``seconds``) against the real-data goals above. Where Reed is not between backprojection and
+    SH-SAS, the line says why from the Chamfer halves and the precision and recall: which of
+    stray points and missed surface puts it outside."""
+    by = {r["method"]: r for r in rows}
+    bp, reed, sh = by.get("backprojection"), by.get("reed"), by.get("shsas")
+    lines: list[str] = []
+
+    def line(ok: bool, text: str) -> None:
+        lines.append(f"{'PASS' if ok else 'FAIL'} {text}")
+
+    if bp and sh:
+        ratio = sh["chamfer_l2"] / bp["chamfer_l2"]
+        line(ratio <= CHAMFER_RATIO_GOAL, f"SH-SAS Chamfer-L2 {ratio:.2f} x backprojection's (goal <= {CHAMFER_RATIO_GOAL})")
+        margin = sh["fscore"] - bp["fscore"]
+        line(margin >= FSCORE_MARGIN_GOAL, f"SH-SAS F@5mm {margin:+.3f} over backprojection (goal >= +{FSCORE_MARGIN_GOAL})")
+    if sh and "mesh_pieces" in sh:
+        line(sh["mesh_pieces"] <= MAX_MESH_PIECES, f"SH-SAS mesh {sh['mesh_pieces']} piece(s) (goal <= {MAX_MESH_PIECES})")
+    for name, r in (("Reed", reed), ("SH-SAS", sh)):
+        if r and r.get("seconds") is not None:
+            line(r["seconds"] <= MAX_NEURAL_SECONDS, f"{name} {r['seconds']:.0f} s (goal <= {MAX_NEURAL_SECONDS} s)")
+    if bp and sh and reed:
+        for key, label, better in (("chamfer_l2", "Chamfer-L2", min), ("fscore", "F@5mm", max)):
+            lo, hi = sorted((bp[key], sh[key]))
+            if lo <= reed[key] <= hi:
+                line(True, f"Reed between backprojection and SH-SAS on {label} ({reed[key]:.3g})")
+                continue
+            where = "the best" if better(reed[key], bp[key], sh[key]) == reed[key] else "the worst"
+            line(False, f"Reed not between on {label}: it has {where} ({reed[key]:.3g}; backprojection "
+                 f"{bp[key]:.3g}, SH-SAS {sh[key]:.3g}). Why: {_why(reed, sh)}")
+    return lines
+
+
+def _why(reed: dict, sh: dict) -> str:
+    """Reed against SH-SAS by the Chamfer halves and the F@5mm precision and recall."""
+    def cmp(a: float, b: float, more: str, less: str) -> str:
+        return more if a < b else less
+
+    acc = cmp(reed["chamfer_l2_accuracy"], sh["chamfer_l2_accuracy"], "fewer", "more")
+    comp = cmp(reed["chamfer_l2_completeness"], sh["chamfer_l2_completeness"], "less", "more")
+    return (f"against SH-SAS, Reed's cloud has {acc} stray points (cloud->mesh half "
+            f"{reed['chamfer_l2_accuracy']:.2e} against {sh['chamfer_l2_accuracy']:.2e} m², precision "
+            f"{reed['fscore_precision']:.2f} against {sh['fscore_precision']:.2f}) and misses {comp} of the "
+            f"surface (mesh->cloud half {reed['chamfer_l2_completeness']:.2e} against "
+            f"{sh['chamfer_l2_completeness']:.2e} m², recall {reed['fscore_recall']:.2f} against "
+            f"{sh['fscore_recall']:.2f})")
 
 
 def board_rows(board: dict) -> list[dict]:
@@ -153,7 +211,9 @@ def write_board_record(board: dict, load_info: dict) -> Path:
     rec = records.make_record(
         "real_bunny", name, f"Real AirSAS bunny: {who} at {budget}, aligned to the mesh (rigid, scale fixed)", " ".join(["python benchmarks/bench_real_bunny.py", *sys.argv[1:]]),
         COLUMNS, board_rows(board), machine_info=records.machine(), load_info=load_info,
-        notes=f"spec overrides: {board.get('overrides') or 'none'}; torch threads {board.get('threads')}")
+        notes=f"spec overrides: {board.get('overrides') or 'none'}; torch threads {board.get('threads')}"
+        + "".join(f"; {sub['pings']} pings: " + "; ".join(sub.get("checks", [])) for sub in board["subsets"]
+                  if sub.get("checks")))
     return records.write_record(rec)
 
 
@@ -188,8 +248,12 @@ def scoreboard(out: Path, angle_steps: list[int], overrides: dict, yaw_starts: i
         rows = score_folder(out / f"angle_step_{step}", yaw_starts)
         for r in rows:
             r["seconds"] = res.metrics.get(r["method"], {}).get("seconds")
+        checks = goal_checks(rows)
+        for c in checks:
+            print(f"{len(idx)} pings: {c}", flush=True)
         board["subsets"].append({"angle_step": step, "pings": len(idx), "wall_s": round(wall, 1),
-                                 "timings": res.timings, "device": res.device, "methods": rows})
+                                 "timings": res.timings, "device": res.device, "methods": rows,
+                                 "checks": checks})
     return board
 
 

@@ -120,11 +120,12 @@ def aligned_scores(volume, vertices: np.ndarray, faces: np.ndarray, *, extract_c
     ``scale``: as :func:`align_rigid` (the scores are then after the scaled alignment).
 
     Returns:
-        ({"tau", "points", "chamfer_l2_raw", "chamfer_l2", "chamfer_l1", and the F-scores of
+        ({"tau", "points", "chamfer_l2_raw", "chamfer_l2", "chamfer_l1", its two halves
+        (:func:`~shsas_core.evaluation.metrics.chamfer_l2_parts`), and the F-scores of
         :func:`~shsas_core.evaluation.metrics.point_fscores` after alignment}, the alignment).
     """
     from shsas_core.evaluation.extract import choose_threshold, point_cloud
-    from shsas_core.evaluation.metrics import point_fscores, sample_surface
+    from shsas_core.evaluation.metrics import chamfer_l2_parts, point_fscores, sample_surface
 
     gt = sample_surface(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
     tau = choose_threshold(volume, extract_config)
@@ -134,4 +135,4 @@ def aligned_scores(volume, vertices: np.ndarray, faces: np.ndarray, *, extract_c
     best = align_rigid(pc.points, gt, yaw_starts=yaw_starts, iterations=iterations, scale=scale)
     return ({"tau": tau, "points": float(len(pc)), "chamfer_l2_raw": chamfer(pc.points, gt)["chamfer_l2"],
              "chamfer_l2": best.chamfer_l2, "chamfer_l1": best.chamfer_l1,
-             **point_fscores(best.points, gt)}, best)
+             **chamfer_l2_parts(best.points, gt), **point_fscores(best.points, gt)}, best)

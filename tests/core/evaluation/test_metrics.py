@@ -10,6 +10,7 @@ from shsas_core.evaluation.metrics import (
     GroundTruth,
     ScoringGrid,
     chamfer,
+    chamfer_l2_parts,
     fscore,
     nn_distances,
     occupancy_scores,
@@ -45,6 +46,22 @@ def test_chamfer_and_fscore_match_brute_force():
     assert f["fscore_precision"] == pytest.approx(p)
     assert f["fscore_recall"] == pytest.approx(r)
     assert f["fscore"] == pytest.approx(2 * p * r / (p + r))
+
+
+def test_chamfer_l2_parts_are_the_directed_halves():
+    rng = np.random.default_rng(3)
+    a, b = rng.random((40, 3)) * 0.02, rng.random((55, 3)) * 0.02
+    parts = chamfer_l2_parts(a, b)
+    assert parts["chamfer_l2_accuracy"] == pytest.approx(np.mean(brute_nn(a, b) ** 2), rel=1e-12)
+    assert parts["chamfer_l2_completeness"] == pytest.approx(np.mean(brute_nn(b, a) ** 2), rel=1e-12)
+    assert sum(parts.values()) == pytest.approx(chamfer(a, b)["chamfer_l2"], rel=1e-12)
+    # a stray point far off hurts accuracy only; a missed half of the reference, completeness only
+    g = np.stack(np.meshgrid(*[np.arange(4) * 0.1] * 3, indexing="ij"), -1).reshape(-1, 3)
+    stray = chamfer_l2_parts(np.vstack([g, [[1.0, 1.0, 1.0]]]), g)
+    assert stray["chamfer_l2_accuracy"] > 0 and stray["chamfer_l2_completeness"] == 0
+    half = chamfer_l2_parts(g[g[:, 0] < 0.15], g)
+    assert half["chamfer_l2_accuracy"] == 0 and half["chamfer_l2_completeness"] > 0
+    assert chamfer_l2_parts(np.zeros((0, 3)), g)["chamfer_l2_accuracy"] == math.inf
 
 
 def test_chamfer_of_shifted_sets_is_the_shift():
