@@ -45,3 +45,12 @@ def test_missing_methods_give_only_the_checks_they_can() -> None:
     assert lines == []
     slow = bench.goal_checks([row("reed", 3e-4, 2e-4, 0.4, 0.3, 0.5, seconds=bench.MAX_NEURAL_SECONDS + 1)])
     assert slow == [f"FAIL Reed {bench.MAX_NEURAL_SECONDS + 1} s (goal <= {bench.MAX_NEURAL_SECONDS} s)"]
+
+
+def test_mesh_goals_are_judged_when_the_meshes_were_scored() -> None:
+    rows = [row("backprojection", 3.0e-4, 2.0e-4, 0.36, 0.23, 0.83, mesh_chamfer_l2=4.0e-4, mesh_fscore=0.30),
+            row("shsas", 2.9e-4, 1.2e-4, 0.40, 0.33, 0.52, mesh_chamfer_l2=3.0e-4, mesh_fscore=0.40)]
+    lines = bench.goal_checks(rows)
+    assert "PASS SH-SAS Chamfer-L2 (meshes) 0.75 x backprojection's (goal <= 0.8)" in lines
+    assert "PASS SH-SAS F@5mm (meshes) +0.100 over backprojection (goal >= +0.05)" in lines
+    assert lines[0].startswith("FAIL SH-SAS Chamfer-L2 0.97 x")
