@@ -69,8 +69,8 @@ with another spec (older defaults) are left out of the tables, with a warning. A
 measured with the same code version (git commit plus a digest of uncommitted changes under
 ``shsas_core/``), spec and survey is not run again (``--fresh`` re-measures it).
 
-``--record`` also writes one result record per (regime, scene, seed) of the profile's current
-spec into ``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
+``--record`` also writes one result record per (regime, seed) of the profile's current spec (a
+row per scene and method, the mean over the scenes, the checks in its notes) into ``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
 ``docs/results.md`` is generated from them by ``benchmarks/scoreboard.py``).
 
 Simulated surveys are cached under ``--cache-dir`` (default ``$SHSAS_CACHE_DIR/fidelity`` or
@@ -719,45 +719,52 @@ def report(profile_dir: Path, spec: ReconstructionSpec, machine: dict[str, Any])
     return summary
 
 
-def write_result_records(profile_dir: Path, profile: str, spec: ReconstructionSpec) -> list[Path]:
-    """One result record per (regime, scene, seed) of the profile, its methods as rows; only the
+def write_result_records(profile_dir: Path, profile: str, spec: ReconstructionSpec,
+                         folder: Path | None = None) -> list[Path]:
+    """One result record per (regime, seed) of the profile: a row per scene and method, then the
+    mean over the scenes per method, with the regime's checks for that seed in the notes; only the
     entries measured with ``spec`` (the ones the tables use). Machine, load, date and commit are
-    the first method's; the notes name any method measured under others."""
+    the first entry's; the notes name any entry measured under others. ``folder``: where the
+    records go (default ``benchmarks/results/``)."""
     import records
 
+    cells, _, _ = collect(profile_dir, spec)
     want = spec_key(spec)
-    columns = [("method", "method", ""), *((k, t, f) for k, t, f, _ in COLUMNS)]
+    columns = [("row", "scene / method", ""), *((k, t, f) for k, t, f, _ in COLUMNS)]
     written = []
-    for path in sorted(profile_dir.glob("*/*/seed*/result.json")):
-        cell = read_record(path)
-        entries = {m: e for m, e in cell.get("methods", {}).items()
-                   if "error" not in e and spec_key(e.get("spec", {})) == want}
-        if not entries:
-            continue
-        methods = [m for m in METHODS if m in entries]
-        first = entries[methods[0]]
+    for regime, seed in sorted({(c.regime, c.seed) for c in cells}):
+        sel = [c for c in cells if c.regime == regime and c.seed == seed]
+        scenes = [sc for sc in SCENES if any(c.scene == sc for c in sel)]
+        methods = [m for m in METHODS if any(c.method == m for c in sel)]
+        entries = [(sc, m, e) for sc in scenes
+                   for m, e in read_record(profile_dir / regime / sc / f"seed{seed}" / "result.json").get("methods", {}).items()
+                   if "error" not in e and spec_key(e.get("spec", {})) == want]
+        first = entries[0][2]
         m0 = first.get("machine", {})
-        rows = [{"method": LABEL.get(m, m), **{k: _finite(v) for k, v in entries[m]["metrics"].items()},
-                 "seconds": _finite(entries[m]["seconds"])} for m in methods]
-        differ = [f"{LABEL.get(m, m)}: {e.get('machine', {}).get('cpu')}, load "
-                  f"{e.get('machine', {}).get('load_avg_before')}, code {e.get('code')}, finished {e.get('finished')}"
-                  for m, e in ((m, entries[m]) for m in methods[1:])
-                  if (e.get("code"), e.get("machine", {}).get("cpu")) != (first.get("code"), m0.get("cpu"))]
-        regime, scene, seed = cell["regime"], cell["scene"], int(cell["seed"])
-        name = f"fidelity-{profile}-{regime}-{scene}-seed{seed}"
+        rows = [{"row": f"{c.scene} / {LABEL.get(c.method, c.method)}", **{k: _finite(v) for k, v in c.values.items()}}
+                for sc in scenes for m in methods for c in sel if c.scene == sc and c.method == m]
+        if len(scenes) > 1:
+            rows += [{"row": f"mean of {len(scenes)} / {LABEL.get(m, m)}",
+                      **{k: _finite(_mean([c.values.get(k, math.nan) for c in sel if c.method == m]))
+                         for k, _, _, _ in COLUMNS}} for m in methods]
+        differ = sorted({f"{sc}/{LABEL.get(m, m)}: {e.get('machine', {}).get('cpu')}, code {e.get('code')}"
+                         for sc, m, e in entries[1:]
+                         if (e.get("code"), e.get("machine", {}).get("cpu")) != (first.get("code"), m0.get("cpu"))})
+        checks = "; ".join(f"{ch.status} {ch.name}: {ch.detail}" for ch in regime_checks(regime, sel))
+        notes = f"Checks (this seed): {checks}." + (f" Measured under other conditions: {'; '.join(differ)}." if differ else "")
+        suite = "the suite" if scenes == list(SCENES) else ", ".join(scenes)
         record = {
-            "schema": records.SCHEMA, "benchmark": "fidelity", "name": name,
-            "title": f"Fidelity ({profile}): {regime} regime, {scene}, seed {seed}",
+            "schema": records.SCHEMA, "benchmark": "fidelity", "name": f"fidelity-{profile}-{regime}-seed{seed}",
+            "title": f"Fidelity ({profile}): {regime} regime, {suite} ({len(scenes)} scene(s)), seed {seed}",
             "command": (f"python benchmarks/bench_fidelity.py{' --paper' if profile == 'paper' else ''} "
-                        f"--regimes {regime} --scenes {scene} --seeds {seed}"),
+                        f"--regimes {regime} --scenes {','.join(scenes)} --seeds {seed}"),
             "machine": {"cpu": m0.get("cpu"), "cores": m0.get("nproc"), "gpu": m0.get("gpu"),
                         "torch": m0.get("torch")},
             "load": {"loadavg": m0.get("load_avg_before"), "note": ""},
             "date": str(first.get("finished", ""))[:10] or records.today(), "commit": first.get("code") or None,
-            "transcribed": None, "columns": [list(c) for c in columns], "rows": rows,
-            "notes": ("Measured under other conditions: " + "; ".join(differ) + ".") if differ else "",
-            "scene": scene, "regime": regime, "seed": seed, "protocol": "surface"}
-        written.append(records.write_record(record))
+            "transcribed": None, "columns": [list(c) for c in columns], "rows": rows, "notes": notes,
+            "regime": regime, "seed": seed, "protocol": "surface"}
+        written.append(records.write_record(record, *([folder] if folder else [])))
     return written
 
 
