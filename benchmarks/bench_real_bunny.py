@@ -13,7 +13,9 @@ folder (Reed, SH-SAS, backprojection) the same way, with the mesh checks (pieces
 ratio) of each ``*_mesh.ply``. ``--scoreboard DIR`` is the real-data scoreboard: every method
 through the pipeline at the defaults (``--iters``, ``--spec-grid``, ``--methods`` override them)
 on every ``--angle-steps`` subset (default 2 and 4: 27,000 and 13,500 pings), each scored so,
-with wall times; the figures go to one JSON record under ``benchmarks/results/``.
+with the two halves of the Chamfer distance and wall times, and the real-data goals printed as
+PASS / FAIL lines (:func:`goal_checks`, which say why when Reed is not between backprojection and
+SH-SAS); the figures go to one JSON record under ``benchmarks/results/``.
 ``--pictures`` writes the MIPs, the centre slice beside the authors' reference slice, and the
 aligned points over the mesh sample. Never asserts: figures are reported, not tested.
 """
