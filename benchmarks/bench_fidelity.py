@@ -70,7 +70,8 @@ measured with the same code version (git commit plus a digest of uncommitted cha
 ``shsas_core/``), spec and survey is not run again (``--fresh`` re-measures it).
 
 ``--record`` also writes one result record per (regime, seed) of the profile's current spec (a
-row per scene and method, the mean over the scenes, the checks in its notes) into ``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
+row per scene and method, the mean over the scenes, the checks in its notes) into
+``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
 ``docs/results.md`` is generated from them by ``benchmarks/scoreboard.py``).
 
 Simulated surveys are cached under ``--cache-dir`` (default ``$SHSAS_CACHE_DIR/fidelity`` or

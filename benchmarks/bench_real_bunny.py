@@ -98,6 +98,12 @@ def pictures(vol: np.ndarray, best, gt_v: np.ndarray, gt_f: np.ndarray, out: Pat
     return [str(a), str(b), str(c)]
 
 
+#: Room around the reference mesh for the scoring grid of the aligned meshes, m.
+GT_BOX_MARGIN = 0.05
+#: The mesh scores kept per method (``metrics.score_mesh`` keys).
+MESH_KEYS = ("chamfer_l2", "fscore", "surface_f1", "area_ratio", "normal_consistency")
+
+
 def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
     """Aligned scores of every method's volume in a `shsas reconstruct` output folder, and of its
     ``{method}_mesh.ply`` moved by the volume's alignment: the protocol's mesh scores
@@ -135,11 +141,6 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
     return rows
 
 
-#: Room around the reference mesh for the scoring grid of the aligned meshes, m.
-GT_BOX_MARGIN = 0.05
-#: The mesh scores kept per method (``metrics.score_mesh`` keys).
-MESH_KEYS = ("chamfer_l2", "fscore", "surface_f1", "area_ratio", "normal_consistency")
-
 #: The real-data scoreboard's columns (a row per method and ping subset).
 COLUMNS = [["row", "method / pings", ""], ["chamfer_l2", "aligned Chamfer-L2 (m²)", "{:.3e}"],
            ["chamfer_l2_accuracy", "cloud→mesh half", "{:.2e}"],
@@ -162,9 +163,9 @@ MAX_NEURAL_SECONDS = 15 * 60
 def goal_checks(rows: list[dict]) -> list[str]:
     """PASS/FAIL lines for one ping subset's scored methods (rows of :func:`score_folder`, with
     ``seconds``) against the real-data goals above, on the point clouds and, where scored, on
-    the meshes. Where Reed is not between backprojection and
-    SH-SAS, the line says why from the Chamfer halves and the precision and recall: which of
-    stray points and missed surface puts it outside."""
+    the meshes. Where Reed is not between backprojection and SH-SAS, the line says why from the
+    Chamfer halves and the precision and recall: which of stray points and missed surface puts it
+    outside."""
     by = {r["method"]: r for r in rows}
     bp, reed, sh = by.get("backprojection"), by.get("reed"), by.get("shsas")
     lines: list[str] = []

@@ -142,11 +142,19 @@ def nn_distances(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return np.asarray(d, dtype=np.float64)
 
 
+def _directed(pred: np.ndarray, gt: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Nearest-neighbour distances pred -> gt and gt -> pred (m); None when either set is empty."""
+    if len(pred) == 0 or len(gt) == 0:
+        return None
+    return nn_distances(pred, gt), nn_distances(gt, pred)
+
+
 def chamfer(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     """Chamfer distances between point sets (m², m); inf when either set is empty."""
-    if len(pred) == 0 or len(gt) == 0:
+    d = _directed(pred, gt)
+    if d is None:
         return {"chamfer_l2": math.inf, "chamfer_l1": math.inf}
-    d_pg, d_gp = nn_distances(pred, gt), nn_distances(gt, pred)
+    d_pg, d_gp = d
     return {
         "chamfer_l2": float(np.mean(d_pg**2) + np.mean(d_gp**2)),
         "chamfer_l1": float(0.5 * (np.mean(d_pg) + np.mean(d_gp))),
@@ -158,10 +166,10 @@ def chamfer_l2_parts(pred: np.ndarray, gt: np.ndarray) -> dict[str, float]:
     ``chamfer_l2_accuracy``, the mean squared distance from a predicted point to the reference
     (stray points raise it), and ``chamfer_l2_completeness``, from a reference point to the
     prediction (missed surface raises it). Which half moves says why two clouds rank as they do."""
-    if len(pred) == 0 or len(gt) == 0:
+    d = _directed(pred, gt)
+    if d is None:
         return {"chamfer_l2_accuracy": math.inf, "chamfer_l2_completeness": math.inf}
-    return {"chamfer_l2_accuracy": float(np.mean(nn_distances(pred, gt) ** 2)),
-            "chamfer_l2_completeness": float(np.mean(nn_distances(gt, pred) ** 2))}
+    return {"chamfer_l2_accuracy": float(np.mean(d[0] ** 2)), "chamfer_l2_completeness": float(np.mean(d[1] ** 2))}
 
 
 def fscore(pred: np.ndarray, gt: np.ndarray, tau: float = FSCORE_TAU, key: str = "fscore") -> dict[str, float]:
