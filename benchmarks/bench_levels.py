@@ -25,10 +25,18 @@ TSDF fusion marks as inside behind an observed surface. The solid F1 counts the 
 adding the unobservable space behind the surface separates the methods. A candidate, not a
 product option.
 
+With ``--fog SHARE`` it instead re-extracts every stored volume with the product's own extraction
+(``extract.extract``: ridge cloud and Poisson mesh, the survey's sensors and range resolution) and,
+for the neural methods, again with the fog step on at that share (``ExtractConfig.fog_share``: a
+candidate, off in the product), and prints the cloud's and the mesh's surface F1, the cloud's
+F@5mm and Chamfer-L2 and the mesh's area ratio of both. Backprojection is printed with the step
+off only, for reference.
+
 Usage::
 
     python benchmarks/bench_levels.py --regimes dense --scenes bunny,armadillo,sphere,cube
     python benchmarks/bench_levels.py --regimes dense --hidden-band 5,10,20
+    python benchmarks/bench_levels.py --regimes sparse,dense --fog 0.05
 """
 
 from __future__ import annotations
@@ -47,13 +55,16 @@ import bench_fidelity as fid
 from shsas_core.data.volume import Grid, Volume
 from shsas_core.evaluation.extract import (
     PAPER_TAU,
+    ExtractConfig,
     choose_threshold,
+    extract,
     normalize,
     otsu_threshold,
     point_cloud,
 )
-from shsas_core.evaluation.metrics import GroundTruth, score_points
+from shsas_core.evaluation.metrics import GroundTruth, score_points, score_reconstruction
 from shsas_core.outputs.export import read_volume_npy
+from shsas_core.spec.catalogue import REGISTRY
 
 #: Every how many pings a TX position serves as a view for :func:`hidden_voxels` (3,600 -> 515).
 VIEW_STRIDE = 7
@@ -185,6 +196,24 @@ def rescore_hidden(volume: Volume, gt: GroundTruth, views: np.ndarray,
     return out
 
 
+#: The scores ``--fog`` prints per extraction (``metrics.score_reconstruction``'s keys).
+FOG_SCORES = ("pc_surface_f1", "mesh_surface_f1", "pc_fscore", "pc_chamfer_l2", "mesh_area_ratio")
+
+
+def rescore_fog(volume: Volume, gt: GroundTruth, sensors: np.ndarray, resolution: float,
+                share: float | None) -> dict[str, dict[str, float]]:
+    """The product's extraction of ``volume`` (``ridge``) and, when ``share`` is given, the same
+    with the fog step at that share (``ridge+fog``), each with :data:`FOG_SCORES` and τ."""
+    out = {}
+    for name, cfg in (("ridge", ExtractConfig()), ("ridge+fog", ExtractConfig(fog_share=share))):
+        if name == "ridge+fog" and share is None:
+            continue
+        tau, cloud, mesh = extract(volume, cfg, sensors, resolution)
+        s = score_reconstruction(cloud.points, mesh, gt)
+        out[name] = {"tau": tau, "points": float(len(cloud)), **{k: float(s[k]) for k in FOG_SCORES}}
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     from shsas_core.formats.hdf5 import read_survey
 
@@ -197,7 +226,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", help="simulated-survey cache (as bench_fidelity.py)")
     ap.add_argument("--hidden-band", metavar="MM,...",
                     help="also score the Otsu cloud plus its hidden band at these depths, mm (module doc)")
+    ap.add_argument("--fog", metavar="SHARE", type=float,
+                    help="instead: the product's extraction with the fog step off and at this share, for "
+                         "the neural methods (module doc)")
     args = ap.parse_args(argv)
+    if args.fog is not None and not 0 <= args.fog <= 1:
+        ap.error(f"--fog: a share in [0, 1], got {args.fog}")
+    if args.fog is not None and args.hidden_band:
+        ap.error("--fog and --hidden-band exclude each other")
     try:
         depths = [float(x) for x in args.hidden_band.split(",")] if args.hidden_band else []
     except ValueError:
@@ -225,6 +261,13 @@ def main(argv: list[str] | None = None) -> int:
             if not stored.is_file():
                 continue
             volume = read_volume_npy(stored)
+            if args.fog is not None:
+                share = args.fog if REGISTRY[method].neural else None
+                for rule, s in rescore_fog(volume, gt, survey.tx, survey.meta.range_resolution, share).items():
+                    rows[(cell, method, rule)] = s
+                    print(f"{cell:24s} {method:14s} {rule:9s} τ {s['tau']:.3f}  points {s['points']:6.0f}  "
+                          + "  ".join(f"{k} {s[k]:.3g}" for k in FOG_SCORES), flush=True)
+                continue
             scores = rescore(volume, gt)
             if depths:
                 scores |= rescore_hidden(volume, gt, survey.tx[::VIEW_STRIDE], depths)
@@ -236,6 +279,9 @@ def main(argv: list[str] | None = None) -> int:
     if not rows:
         print(f"no stored volumes under {Path(args.out) / args.profile}")
         return 1
+    if args.fog is not None:
+        print_fog_means(rows)
+        return 0
     methods = sorted({m for _, m, _ in rows})
     cells = sorted({c for c, _, _ in rows})
     print(f"\nmean over {len(cells)} cell(s): pc surface F1 / solid F1 (paper code) / Chamfer-L2 m² / F@5mm")
@@ -251,6 +297,19 @@ def main(argv: list[str] | None = None) -> int:
                                    f"{np.mean([s['fscore'] for s in sel]):.3f}"]))
         print(f"| {rule} | " + " | ".join(out) + " |")
     return 0
+
+
+def print_fog_means(rows: dict[tuple[str, str, str], dict[str, float]]) -> None:
+    """Per regime, the mean over its cells of each (method, extraction) row of ``--fog``."""
+    regimes = sorted({c.split("/")[0] for c, _, _ in rows})
+    print("\nmean over the stored scenes: " + " / ".join(FOG_SCORES))
+    for regime in regimes:
+        print(f"\n{regime}\n| method | extraction | cells | " + " | ".join(FOG_SCORES) + " |")
+        print("|---|---|---|" + "---|" * len(FOG_SCORES))
+        for method, rule in dict.fromkeys((m, r) for c, m, r in rows if c.startswith(regime + "/")):
+            sel = [s for (c, m, r), s in rows.items() if c.startswith(regime + "/") and m == method and r == rule]
+            vals = [f"{np.mean([s[k] for s in sel]):.3g}" for k in FOG_SCORES]
+            print(f"| {fid.LABEL.get(method, method)} | {rule} | {len(sel)} | " + " | ".join(vals) + " |")
 
 
 if __name__ == "__main__":

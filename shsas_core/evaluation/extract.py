@@ -27,6 +27,11 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    at ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
    sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
    object fills the window) keeps its whole ridge above τ.
+   **Fog** (``fog_share``; off by default): a candidate for a neural field's volume, measured
+   and not adopted (docs/results.md, "A fog step for the neural ridge"). On sparse surveys the
+   fit leaves faint sheets in empty space that pass the contrast test; when more than
+   ``fog_share`` of the ridge lies below τ, the points below τ go, and each remaining piece must
+   hold a point at or above Otsu's level of the ridge's own magnitudes.
 3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.evaluation.ridge`): one sheet of
    sub-voxel points where the magnitude peaks, instead of the shell's full thickness, in the
    magnitude smoothed over ``smoothing`` range resolutions (the scales of steps 3-5 are shares of
@@ -53,7 +58,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -61,6 +66,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from shsas_core.common.errors import ShsasError
 from shsas_core.data.volume import Volume
 from shsas_core.spec.options import MESHER, MESHER_HELP, SURFACE, SURFACE_HELP, Mesher, Surface
+
+if TYPE_CHECKING:
+    from shsas_core.evaluation.ridge import Ridge
 
 #: The paper's fixed iso level on the normalised magnitude (reported beside the rule's τ).
 PAPER_TAU = 0.2
@@ -101,6 +109,10 @@ class ExtractConfig(BaseModel):
     contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
                                  "background mean when connected to a strong one")
     contrast_strong: float = Field(3.0, gt=0, description="a ridge piece needs one voxel at this multiple")
+    fog_share: float | None = Field(None, ge=0, le=1, description="the fog step for a neural field's "
+                                    "ridge (module doc, step 2): when more than this share of it lies below "
+                                    "τ, those points go and each piece must reach Otsu's level of the ridge's "
+                                    "magnitudes; None: off")
     min_piece: float = Field(0.01, ge=0, lt=1, description="ridge pieces with fewer points than this share "
                              "of the largest piece's are dropped as specks")
     trim: float = Field(1.45, gt=0, description="Poisson faces farther than this many range resolutions "
@@ -237,6 +249,22 @@ def resolution_m(spacing: float, config: ExtractConfig, resolution: float | None
     return config.resolution_voxels * float(spacing)
 
 
+def without_fog(r: Ridge, norm: np.ndarray, tau: float, fog_share: float) -> Ridge:
+    """The ridge ``r`` of the normalised magnitude ``norm`` (X, Y, Z) without a fog's faint ridges
+    (module doc, step 2, a candidate): unchanged unless more than ``fog_share`` of its points lie below ``tau``;
+    then its points at or above ``tau`` whose 26-connected piece holds one at or above Otsu's
+    level of all its points' magnitudes."""
+    from shsas_core.evaluation.ridge import connected_to_strong
+
+    if len(r) == 0:
+        return r
+    mags = norm[tuple(r.index.T)]
+    above = mags >= tau
+    if np.mean(~above) <= fog_share:
+        return r
+    return connected_to_strong(r.subset(above), norm.shape, otsu_threshold(mags), values=mags[above])
+
+
 def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
                 sensors: np.ndarray | None = None, resolution: float | None = None) -> PointCloud:
     """The surface points of ``volume`` (module doc, steps 1-4), with oriented normals.
@@ -278,6 +306,8 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         # too coarse or too sparse an image for the contrast test (the object fills the window):
         # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
         r = ridge(norm, norm >= tau, lo, grid.spacing, sigma)
+    if cfg.fog_share is not None:
+        r = without_fog(r, norm, tau, cfg.fog_share)
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
     if sigma_n != sigma:
         r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, sigma_n))

@@ -330,15 +330,21 @@ def suppress_sidelobes(points: np.ndarray, normals: np.ndarray, strength: np.nda
     return keep
 
 
-def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float) -> Ridge:
+def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float,
+                        values: np.ndarray | None = None) -> Ridge:
     """Hysteresis: keep the ridge voxels whose 26-connected piece of ridge voxels holds at least
-    one voxel of value >= ``strong`` (Canny's rule: weak ridge continues a strong one or goes)."""
+    one voxel of value >= ``strong`` (Canny's rule: weak ridge continues a strong one or goes).
+
+    Args:
+        values: (P,) the value each ridge voxel is judged by (None: ``r.values``).
+    """
     if len(r) == 0:
         return r
+    values = r.values if values is None else np.asarray(values)
     mask = np.zeros(shape, dtype=bool)
     mask[tuple(r.index.T)] = True
     labels, count = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
     lab = labels[tuple(r.index.T)]
     good = np.zeros(count + 1, dtype=bool)
-    good[lab[r.values >= strong]] = True
+    good[lab[values >= strong]] = True
     return r.subset(good[lab])

@@ -62,6 +62,36 @@ def test_rescore_scores_the_same_cloud_as_the_pipeline_at_each_tau(levels) -> No
     assert out["paper"]["tau"] == pytest.approx(0.2) and out["fixed0.1"]["tau"] == pytest.approx(0.1)
 
 
+
+def test_rescore_fog_scores_the_products_extraction_with_the_step_off_and_on(levels) -> None:
+    import trimesh
+
+    from shsas_core.data.survey import SceneBox
+    from shsas_core.data.volume import Grid, Volume
+    from shsas_core.evaluation.extract import ExtractConfig, extract
+    from shsas_core.evaluation.metrics import GroundTruth, score_reconstruction
+
+    box = SceneBox(min=(-0.05, -0.05, -0.05), max=(0.05, 0.05, 0.05))
+    mesh = trimesh.creation.icosphere(subdivisions=3, radius=0.03)
+    gt = GroundTruth(mesh.vertices, mesh.faces, box)
+    grid = Grid(box_min=box.min, box_max=box.max, shape=(32, 32, 32))
+    x = grid.points()
+    r = np.linalg.norm(x, axis=1).reshape(grid.shape)
+    # the sphere's shell plus a faint flat sheet in a corner: a fog for the step to remove
+    sheet = 0.12 * np.exp(-(((x[:, 2] + 0.04) / 0.003) ** 2)).reshape(grid.shape)
+    sheet *= ((np.abs(x[:, 0] - 0.035) < 0.012) & (np.abs(x[:, 1] - 0.035) < 0.012)).reshape(grid.shape)
+    vol = Volume(grid, np.maximum(np.exp(-((r - 0.03) / 0.004) ** 2), sheet).astype(np.float32))
+    sensors = np.array([[1.0, 0.0, 0.3], [0.0, 1.0, 0.3], [-1.0, 0.0, 0.3], [0.0, -1.0, 0.3]])
+    out = levels.rescore_fog(vol, gt, sensors, 0.01, 0.05)
+    assert set(out) == {"ridge", "ridge+fog"}
+    for name, cfg in (("ridge", ExtractConfig()), ("ridge+fog", ExtractConfig(fog_share=0.05))):
+        tau, cloud, m = extract(vol, cfg, sensors, 0.01)
+        want = score_reconstruction(cloud.points, m, gt)
+        assert out[name]["points"] == len(cloud) and out[name]["tau"] == pytest.approx(tau)
+        for key in levels.FOG_SCORES:
+            assert out[name][key] == pytest.approx(want[key]), (name, key)
+    assert set(levels.rescore_fog(vol, gt, sensors, 0.01, None)) == {"ridge"}
+
 def _shell_case(open_above: float | None = None):
     """A 2-voxel-thick spherical shell (radius 12 voxels) on a 40³ grid, and 300 views on a sphere
     of radius 1 m around it (Fibonacci points). ``open_above``: remove the shell above this
