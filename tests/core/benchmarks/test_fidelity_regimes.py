@@ -132,3 +132,15 @@ def test_result_records_are_one_per_regime_and_seed_with_scene_rows_means_and_ch
     # SH-SAS is 0.12 over backprojection: the hard regime's + 0.10 passes; there is no Reed to compare
     assert "PASS SH-SAS surface F1 >= backprojection + 0.10" in rec["notes"]
     assert "n/a SH-SAS surface F1 >= Reed + 0.03" in rec["notes"]
+
+
+def test_reextract_reuses_only_finished_runs_of_the_same_spec_and_survey(bench) -> None:
+    spec = bench.base_spec("defaults", {}).model_copy(update={"methods": ["shsas"], "seed": 0, "device": "cpu"})
+    entry = {"spec": spec.model_dump(mode="json"), "code": "old", "survey_key": "k"}
+    assert bench.reusable(entry, "k", spec)
+    assert not bench.reusable(entry, "other survey", spec)
+    assert not bench.reusable(entry, "k", spec.model_copy(update={"iters": spec.iters + 1}))
+    assert not bench.reusable({**entry, "error": "boom"}, "k", spec)
+    assert not bench.reusable({}, "k", spec)
+    with pytest.raises(SystemExit):
+        bench.parse_args(["--fresh", "--reextract"])
