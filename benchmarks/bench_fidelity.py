@@ -390,17 +390,16 @@ def survey_header(job: Job, sim: Survey, survey: Survey, key: str, source: str, 
     return header
 
 
-def is_current(entry: dict[str, Any], code: str, key: str, spec: ReconstructionSpec) -> bool:
-    """Whether a stored entry measured this code (known), survey and spec without error."""
-    return (bool(code) and entry.get("code") == code and entry.get("survey_key") == key
-            and "error" not in entry and spec_key(entry.get("spec", {})) == spec_key(spec))
-
-
 def reusable(entry: dict[str, Any], key: str, spec: ReconstructionSpec) -> bool:
     """Whether a stored entry's reconstruction can be extracted again (``--reextract``): it
     finished, on this survey, with this spec (its code may differ)."""
     return (bool(entry) and "error" not in entry and entry.get("survey_key") == key
             and spec_key(entry.get("spec", {})) == spec_key(spec))
+
+
+def is_current(entry: dict[str, Any], code: str, key: str, spec: ReconstructionSpec) -> bool:
+    """Whether a stored entry measured this code (known), survey and spec without error."""
+    return bool(code) and entry.get("code") == code and reusable(entry, key, spec)
 
 
 def measure(method: str, spec: ReconstructionSpec, survey: Survey, out: Path, tag: str) -> dict[str, Any]:
@@ -442,6 +441,7 @@ def run_job(job: Job, methods: list[str], spec: ReconstructionSpec, device: str,
         if not args.fresh and is_current(old, code, key, run_spec):
             print(f"  {tag}: already measured at {code} (--fresh re-measures)", flush=True)
             continue
+        # --reextract: the reconstruction stays and is extracted again; fit_code names the code that fitted it
         fit_code = old.get("fit_code", old.get("code")) if args.reextract and reusable(old, key, run_spec) else None
         if fit_code is None and (old or args.fresh):  # another code/spec/survey: start clean
             forget(record_path, method)  # its artifacts go now, so its entry must too

@@ -204,10 +204,11 @@ def rescore_fog(volume: Volume, gt: GroundTruth, sensors: np.ndarray, resolution
                 share: float | None) -> dict[str, dict[str, float]]:
     """The product's extraction of ``volume`` (``ridge``) and, when ``share`` is given, the same
     with the fog step at that share (``ridge+fog``), each with :data:`FOG_SCORES` and τ."""
+    configs = {"ridge": ExtractConfig()}
+    if share is not None:
+        configs["ridge+fog"] = ExtractConfig(fog_share=share)
     out = {}
-    for name, cfg in (("ridge", ExtractConfig()), ("ridge+fog", ExtractConfig(fog_share=share))):
-        if name == "ridge+fog" and share is None:
-            continue
+    for name, cfg in configs.items():
         tau, cloud, mesh = extract(volume, cfg, sensors, resolution)
         s = score_reconstruction(cloud.points, mesh, gt)
         out[name] = {"tau": tau, "points": float(len(cloud)), **{k: float(s[k]) for k in FOG_SCORES}}

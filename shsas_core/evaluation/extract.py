@@ -251,9 +251,9 @@ def resolution_m(spacing: float, config: ExtractConfig, resolution: float | None
 
 def without_fog(r: Ridge, norm: np.ndarray, tau: float, fog_share: float) -> Ridge:
     """The ridge ``r`` of the normalised magnitude ``norm`` (X, Y, Z) without a fog's faint ridges
-    (module doc, step 2, a candidate): unchanged unless more than ``fog_share`` of its points lie below ``tau``;
-    then its points at or above ``tau`` whose 26-connected piece holds one at or above Otsu's
-    level of all its points' magnitudes."""
+    (module doc, step 2, a candidate): unchanged unless more than ``fog_share`` of its points lie
+    below ``tau``; then its points at or above ``tau`` whose 26-connected piece holds one at or
+    above Otsu's level of all its points' magnitudes."""
     from shsas_core.evaluation.ridge import connected_to_strong
 
     if len(r) == 0:

@@ -156,15 +156,20 @@ def sheet_normals(values: np.ndarray, index: np.ndarray, spacing: np.ndarray, si
     return np.linalg.eigh(hess)[1][:, :, 0]
 
 
+def piece_labels(r: Ridge, shape: tuple[int, int, int]) -> tuple[np.ndarray, int]:
+    """The 26-connected piece of each ridge voxel: ((P,) labels in 1..count, count)."""
+    mask = np.zeros(shape, dtype=bool)
+    mask[tuple(r.index.T)] = True
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
+    return labels[tuple(r.index.T)], int(count)
+
+
 def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float) -> Ridge:
     """Keep the ridge voxels whose 26-connected piece holds at least ``min_share`` of the points of
     the largest piece: a surface is a connected sheet, isolated noise peaks are specks."""
     if len(r) == 0 or min_share <= 0:
         return r
-    mask = np.zeros(shape, dtype=bool)
-    mask[tuple(r.index.T)] = True
-    labels, count = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
-    lab = labels[tuple(r.index.T)]
+    lab, count = piece_labels(r, shape)
     sizes = np.bincount(lab, minlength=count + 1)
     return r.subset(sizes[lab] >= min_share * sizes[1:].max())
 
@@ -341,10 +346,7 @@ def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float,
     if len(r) == 0:
         return r
     values = r.values if values is None else np.asarray(values)
-    mask = np.zeros(shape, dtype=bool)
-    mask[tuple(r.index.T)] = True
-    labels, count = ndimage.label(mask, structure=np.ones((3, 3, 3), dtype=bool))
-    lab = labels[tuple(r.index.T)]
+    lab, count = piece_labels(r, shape)
     good = np.zeros(count + 1, dtype=bool)
     good[lab[values >= strong]] = True
     return r.subset(good[lab])
