@@ -12,7 +12,8 @@ settings, seconds per stage, the extraction threshold, Chamfer-L2 before and aft
 folder (Reed, SH-SAS, backprojection) the same way, with the mesh checks (pieces, area
 ratio) of each ``*_mesh.ply``. ``--scoreboard DIR`` is the real-data scoreboard: every method
 through the pipeline at the defaults (``--iters``, ``--spec-grid``, ``--methods`` override them)
-on every ``--angle-steps`` subset (default 2 and 4: 27,000 and 13,500 pings), each scored so,
+on every ``--angle-steps`` subset (default 2 and 4: 27,000 and 13,500 pings), each scored so
+(the threshold cloud, then the product's own point cloud and mesh moved by its alignment),
 with the two halves of the Chamfer distance and wall times, and the real-data goals printed as
 PASS / FAIL lines (:func:`goal_checks`, which say why when Reed is not between backprojection and
 SH-SAS); the figures go to one JSON record under ``benchmarks/results/``.
@@ -105,16 +106,27 @@ MESH_KEYS = ("chamfer_l2", "fscore", "surface_f1", "area_ratio", "normal_consist
 
 
 def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
-    """Aligned scores of every method's volume in a `shsas reconstruct` output folder, and of its
-    ``{method}_mesh.ply`` moved by the volume's alignment: the protocol's mesh scores
-    (``metrics.score_mesh``: Chamfer-L2, F@5mm, surface F1, pieces, area ratio, normal
-    consistency), keys ``mesh_*``."""
+    """Aligned scores of every method's volume in a `shsas reconstruct` output folder (its
+    threshold cloud at the rule's τ, :func:`~shsas_core.evaluation.align.aligned_scores`, which
+    finds the alignment), and, moved by that alignment, of the files the product writes: its
+    ``{method}_pointcloud.ply`` (the ridge; Chamfer-L2 with its halves and the F-scores, keys
+    ``product_*``) and its ``{method}_mesh.ply`` (the protocol's mesh scores,
+    ``metrics.score_mesh``: Chamfer-L2, F@5mm, surface F1, pieces, area ratio, normal
+    consistency, keys ``mesh_*``)."""
     import trimesh
 
     from shsas_core.data.survey import SceneBox
-    from shsas_core.evaluation.metrics import GroundTruth, score_mesh
+    from shsas_core.evaluation.metrics import (
+        GroundTruth,
+        chamfer_l2_parts,
+        point_fscores,
+        sample_surface,
+        score_mesh,
+    )
+    from shsas_core.outputs.export import read_point_cloud_ply
 
     mesh = trimesh.load(MESH, force="mesh")
+    gt_sample = sample_surface(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
     lo, hi = mesh.bounds
     gt = GroundTruth(np.asarray(mesh.vertices), np.asarray(mesh.faces),
                      SceneBox(min=tuple(lo - GT_BOX_MARGIN), max=tuple(hi + GT_BOX_MARGIN)))
@@ -129,6 +141,15 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
         scores, best = aligned_scores(vol, np.asarray(mesh.vertices), np.asarray(mesh.faces), yaw_starts=yaw_starts)
         row = {"method": method, "volume": f.name, "grid": info["shape"], "start_yaw_deg": best.start_yaw_deg,
                **{k: round(v, 7) for k, v in scores.items()}}
+        cloud = folder / f"{method}_pointcloud.ply"
+        if cloud.is_file():
+            # the cloud the product writes (the ridge), moved by the same alignment
+            c = read_point_cloud_ply(cloud)
+            pts = np.stack([c["x"], c["y"], c["z"]], axis=1) @ best.matrix[:3, :3].T + best.matrix[:3, 3]
+            cs = {**chamfer_l2_parts(pts, gt_sample), **point_fscores(pts, gt_sample)}
+            row["product_chamfer_l2"] = round(cs["chamfer_l2_accuracy"] + cs["chamfer_l2_completeness"], 7)
+            row.update({f"product_{k}": round(float(v), 7) for k, v in cs.items()})
+            row["product_points"] = len(pts)
         ply = folder / f"{method}_mesh.ply"
         if ply.is_file():
             m = trimesh.load(ply, force="mesh", process=False)
@@ -147,6 +168,8 @@ COLUMNS = [["row", "method / pings", ""], ["chamfer_l2", "aligned Chamfer-L2 (m�
            ["chamfer_l2_completeness", "mesh→cloud half", "{:.2e}"],
            ["fscore", "F@5mm", "{:.3f}"], ["fscore_precision", "precision", "{:.2f}"],
            ["fscore_recall", "recall", "{:.2f}"], ["fscore_2_5mm", "F@2.5mm", "{:.3f}"],
+           ["product_chamfer_l2", "product cloud Chamfer-L2 (m²)", "{:.3e}"],
+           ["product_fscore", "product cloud F@5mm", "{:.3f}"],
            ["mesh_chamfer_l2", "mesh Chamfer-L2 (m²)", "{:.3e}"], ["mesh_fscore", "mesh F@5mm", "{:.3f}"],
            ["mesh_surface_f1", "mesh surface F1", "{:.3f}"],
            ["mesh_pieces", "mesh pieces", "{:d}"], ["mesh_area_ratio", "area ratio", "{:.2f}"],
@@ -173,7 +196,7 @@ def goal_checks(rows: list[dict]) -> list[str]:
     def line(ok: bool, text: str) -> None:
         lines.append(f"{'PASS' if ok else 'FAIL'} {text}")
 
-    for prefix, what in (("", ""), ("mesh_", " (meshes)")):
+    for prefix, what in (("", ""), ("product_", " (product clouds)"), ("mesh_", " (meshes)")):
         if not (bp and sh and bp.get(f"{prefix}chamfer_l2") and sh.get(f"{prefix}chamfer_l2") is not None):
             continue
         ratio = sh[f"{prefix}chamfer_l2"] / bp[f"{prefix}chamfer_l2"]

@@ -3,6 +3,9 @@ Reed is not between backprojection and SH-SAS."""
 
 from __future__ import annotations
 
+import numpy as np
+import pytest
+
 from tests.helpers.bench_scripts import load_bench
 
 bench = load_bench("bench_real_bunny")
@@ -54,3 +57,43 @@ def test_mesh_goals_are_judged_when_the_meshes_were_scored() -> None:
     assert "PASS SH-SAS Chamfer-L2 (meshes) 0.75 x backprojection's (goal <= 0.8)" in lines
     assert "PASS SH-SAS F@5mm (meshes) +0.100 over backprojection (goal >= +0.05)" in lines
     assert lines[0].startswith("FAIL SH-SAS Chamfer-L2 0.97 x")
+
+
+def test_the_product_cloud_is_scored_after_the_volume_s_alignment(tmp_path, shared) -> None:
+    """A volume lit on the reference mesh's surface aligns at about the identity; the product
+    cloud written beside it (the mesh's own surface sample, moved 1 cm up) is then scored where
+    it lies, not where the volume's threshold cloud lies."""
+    import trimesh
+
+    from shsas_core.data.survey import SceneBox
+    from shsas_core.data.volume import Grid, Volume
+    from shsas_core.evaluation.extract import PointCloud
+    from shsas_core.evaluation.metrics import sample_surface
+    from shsas_core.outputs.export import write_point_cloud_ply, write_volume_npy
+
+    mesh = trimesh.load(bench.MESH, force="mesh")
+    lo, hi = mesh.bounds
+    grid = Grid.over(SceneBox(min=tuple(lo - 0.02), max=tuple(hi + 0.02)), 64)
+    sample = sample_surface(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
+    values = np.zeros(grid.shape, np.float32)
+    idx = np.clip(((sample - np.asarray(grid.box_min)) / grid.spacing).astype(int), 0, np.array(grid.shape) - 1)
+    values[tuple(idx.T)] = 1.0
+    write_volume_npy(Volume(grid, values, name="x"), tmp_path / "x_volume.npy")
+    up = sample[::10] + np.array([0.0, 0.0, 0.01])
+    write_point_cloud_ply(PointCloud(up, np.ones(len(up), np.float32)), tmp_path / "x_pointcloud.ply")
+    (row,) = bench.score_folder(tmp_path, yaw_starts=1)
+    assert row["chamfer_l2"] < 2e-5  # the voxel-centred threshold cloud: within a voxel
+    assert row["product_points"] == len(up)
+    # 1 cm off, the product cloud's accuracy half is about (1 cm)² less what the surface's slope takes
+    assert 2e-5 < row["product_chamfer_l2_accuracy"] <= 1.0e-4
+    assert row["product_chamfer_l2"] == pytest.approx(row["product_chamfer_l2_accuracy"]
+                                                      + row["product_chamfer_l2_completeness"], abs=1e-7)  # round(, 7)
+    assert row["product_fscore_2_5mm"] < row["fscore_2_5mm"]
+
+
+def test_product_cloud_goals_are_judged_when_the_product_clouds_were_scored() -> None:
+    rows = [row("backprojection", 3.0e-4, 2.0e-4, 0.36, 0.23, 0.83, product_chamfer_l2=5.0e-4, product_fscore=0.30),
+            row("shsas", 2.9e-4, 1.2e-4, 0.40, 0.33, 0.52, product_chamfer_l2=4.5e-4, product_fscore=0.33)]
+    lines = bench.goal_checks(rows)
+    assert "FAIL SH-SAS Chamfer-L2 (product clouds) 0.90 x backprojection's (goal <= 0.8)" in lines
+    assert "FAIL SH-SAS F@5mm (product clouds) +0.030 over backprojection (goal >= +0.05)" in lines
