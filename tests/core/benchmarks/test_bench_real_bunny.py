@@ -50,12 +50,18 @@ def test_missing_methods_give_only_the_checks_they_can() -> None:
     assert slow == [f"FAIL Reed {bench.MAX_NEURAL_SECONDS + 1} s (goal <= {bench.MAX_NEURAL_SECONDS} s)"]
 
 
-def test_mesh_goals_are_judged_when_the_meshes_were_scored() -> None:
-    rows = [row("backprojection", 3.0e-4, 2.0e-4, 0.36, 0.23, 0.83, mesh_chamfer_l2=4.0e-4, mesh_fscore=0.30),
-            row("shsas", 2.9e-4, 1.2e-4, 0.40, 0.33, 0.52, mesh_chamfer_l2=3.0e-4, mesh_fscore=0.40)]
+@pytest.mark.parametrize(("prefix", "what", "chamfer", "fscore", "expect"), [
+    ("mesh_", "meshes", 3.0e-4, 0.40, ("PASS", "0.75", "PASS", "+0.100")),
+    ("product_", "product clouds", 3.6e-4, 0.33, ("FAIL", "0.90", "FAIL", "+0.030")),
+])
+def test_the_written_outputs_goals_are_judged_when_they_were_scored(prefix, what, chamfer, fscore, expect) -> None:
+    rows = [row("backprojection", 3.0e-4, 2.0e-4, 0.36, 0.23, 0.83, **{f"{prefix}chamfer_l2": 4.0e-4,
+                                                                    f"{prefix}fscore": 0.30}),
+            row("shsas", 2.9e-4, 1.2e-4, 0.40, 0.33, 0.52, **{f"{prefix}chamfer_l2": chamfer, f"{prefix}fscore": fscore})]
     lines = bench.goal_checks(rows)
-    assert "PASS SH-SAS Chamfer-L2 (meshes) 0.75 x backprojection's (goal <= 0.8)" in lines
-    assert "PASS SH-SAS F@5mm (meshes) +0.100 over backprojection (goal >= +0.05)" in lines
+    ok_c, ratio, ok_f, margin = expect
+    assert f"{ok_c} SH-SAS Chamfer-L2 ({what}) {ratio} x backprojection's (goal <= 0.8)" in lines
+    assert f"{ok_f} SH-SAS F@5mm ({what}) {margin} over backprojection (goal >= +0.05)" in lines
     assert lines[0].startswith("FAIL SH-SAS Chamfer-L2 0.97 x")
 
 
@@ -89,11 +95,3 @@ def test_the_product_cloud_is_scored_after_the_volume_s_alignment(tmp_path, shar
     assert row["product_chamfer_l2"] == pytest.approx(row["product_chamfer_l2_accuracy"]
                                                       + row["product_chamfer_l2_completeness"], abs=1e-7)  # round(, 7)
     assert row["product_fscore_2_5mm"] < row["fscore_2_5mm"]
-
-
-def test_product_cloud_goals_are_judged_when_the_product_clouds_were_scored() -> None:
-    rows = [row("backprojection", 3.0e-4, 2.0e-4, 0.36, 0.23, 0.83, product_chamfer_l2=5.0e-4, product_fscore=0.30),
-            row("shsas", 2.9e-4, 1.2e-4, 0.40, 0.33, 0.52, product_chamfer_l2=4.5e-4, product_fscore=0.33)]
-    lines = bench.goal_checks(rows)
-    assert "FAIL SH-SAS Chamfer-L2 (product clouds) 0.90 x backprojection's (goal <= 0.8)" in lines
-    assert "FAIL SH-SAS F@5mm (product clouds) +0.030 over backprojection (goal >= +0.05)" in lines
