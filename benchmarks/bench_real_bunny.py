@@ -123,7 +123,7 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
         sample_surface,
         score_mesh,
     )
-    from shsas_core.outputs.export import read_point_cloud_ply
+    from shsas_core.outputs.export import read_point_cloud_points
 
     mesh = trimesh.load(MESH, force="mesh")
     gt_sample = sample_surface(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
@@ -144,8 +144,7 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
         cloud = folder / f"{method}_pointcloud.ply"
         if cloud.is_file():
             # the cloud the product writes (the ridge), moved by the same alignment
-            c = read_point_cloud_ply(cloud)
-            pts = np.stack([c["x"], c["y"], c["z"]], axis=1) @ best.matrix[:3, :3].T + best.matrix[:3, 3]
+            pts = best.move(read_point_cloud_points(cloud))
             cs = {**chamfer_l2_parts(pts, gt_sample), **point_fscores(pts, gt_sample)}
             row["product_chamfer_l2"] = round(cs["chamfer_l2_accuracy"] + cs["chamfer_l2_completeness"], 7)
             row.update({f"product_{k}": round(float(v), 7) for k, v in cs.items()})
@@ -153,7 +152,7 @@ def score_folder(folder: Path, yaw_starts: int) -> list[dict]:
         ply = folder / f"{method}_mesh.ply"
         if ply.is_file():
             m = trimesh.load(ply, force="mesh", process=False)
-            v = np.asarray(m.vertices, np.float64) @ best.matrix[:3, :3].T + best.matrix[:3, 3]
+            v = best.move(m.vertices)
             ms = score_mesh(v, np.asarray(m.faces), gt)
             row.update({f"mesh_{k}": round(float(ms[k]), 7) for k in MESH_KEYS})
             row["mesh_pieces"] = int(ms["pieces"])

@@ -64,10 +64,9 @@ def _load_target(path: Path):
     if path.suffix.lower() == ".ply":
         head = path.read_bytes()[:4096]
         if b"element face" not in head or b"element face 0\n" in head:
-            from shsas_core.outputs.export import read_point_cloud_ply
+            from shsas_core.outputs.export import read_point_cloud_points
 
-            d = read_point_cloud_ply(path)
-            return np.stack([d["x"], d["y"], d["z"]], 1), None
+            return read_point_cloud_points(path), None
     try:
         m = trimesh.load(path, process=False, force="mesh")
     except Exception as exc:
@@ -115,20 +114,18 @@ def evaluate_target(target: str | Path, gt: str, box: str | None = None) -> dict
     if target.is_dir():
         import trimesh
 
-        from shsas_core.outputs.export import read_point_cloud_ply
+        from shsas_core.outputs.export import read_point_cloud_points
 
         methods = sorted({p.name.rsplit("_", 1)[0] for p in target.glob("*_pointcloud.ply")}
                          | {p.name.rsplit("_", 2)[0] for p in target.glob("*_mesh.ply")})
         if not methods:
             raise ShsasError(f"target: no *_pointcloud.ply or *_mesh.ply in '{target}'")
-        import numpy as np
 
         for m in methods:
             pc, mesh = target / f"{m}_pointcloud.ply", target / f"{m}_mesh.ply"
             pts = None
             if pc.exists():
-                d = read_point_cloud_ply(pc)
-                pts = np.stack([d["x"], d["y"], d["z"]], 1)
+                pts = read_point_cloud_points(pc)
             msh = trimesh.load(mesh, process=False, force="mesh") if mesh.exists() else None
             vol = target / f"{m}_volume.npy"
             fixed = None

@@ -41,6 +41,10 @@ class Alignment:
     chamfer_l1: float
     start_yaw_deg: float
 
+    def move(self, points: np.ndarray) -> np.ndarray:
+        """(P, 3) points of the prediction's frame, m, sent onto the reference by ``matrix``."""
+        return transform(self.matrix, points)
+
     @property
     def scale(self) -> float:
         """The uniform scale in ``matrix`` (1 for a rigid alignment)."""
@@ -54,6 +58,12 @@ class Alignment:
                 "tilt_deg": float(np.degrees(np.arccos(np.clip(r[2, 2], -1.0, 1.0)))),
                 "shift_x_m": float(self.matrix[0, 3]), "shift_y_m": float(self.matrix[1, 3]),
                 "shift_z_m": float(self.matrix[2, 3])}
+
+
+def transform(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(P, 3) ``points``, m, moved by the (4, 4) homogeneous ``matrix``."""
+    p = np.asarray(points, np.float64)
+    return p @ matrix[:3, :3].T + matrix[:3, 3]
 
 
 def _yaw(deg: float, about: np.ndarray) -> np.ndarray:
@@ -104,7 +114,7 @@ def align_rigid(points: np.ndarray, reference: np.ndarray, *, yaw_starts: int = 
         if scale:
             matrix, _, _ = icp(sub, ref, initial=matrix, threshold=1e-9, max_iterations=iterations,
                                reflection=False, translation=True, scale=True)
-        moved = p @ matrix[:3, :3].T + matrix[:3, 3]
+        moved = transform(matrix, p)
         score = chamfer(moved, ref)
         if best is None or score["chamfer_l2"] < best.chamfer_l2:
             best = Alignment(matrix, moved, score["chamfer_l2"], score["chamfer_l1"], deg)

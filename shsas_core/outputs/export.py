@@ -143,6 +143,12 @@ def read_point_cloud_ply(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return {name: np.array(arr[name]) for name, _ in fields}
 
 
+def read_point_cloud_points(path: str | os.PathLike) -> np.ndarray:
+    """The (P, 3) float64 ``x, y, z`` positions, m, of a PLY point cloud (:func:`read_point_cloud_ply`)."""
+    d = read_point_cloud_ply(path)
+    return np.stack([d["x"], d["y"], d["z"]], axis=1).astype(np.float64)
+
+
 def write_volume_npy(volume: Volume, path: str | os.PathLike, extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Save ``volume.values`` (complex64 or float32, shape ``grid.shape``) as NPY plus a JSON
     sidecar ``<stem>.json`` with the grid (box corners in m, shape; voxel (i,j,k) has centre

@@ -38,6 +38,9 @@ def test_a_moved_copy_is_moved_back(bunny_points):
     assert a.chamfer_l2 < 1e-8
     np.testing.assert_allclose(a.matrix[:3, :3], rot.inv().as_matrix(), atol=1e-4)
     np.testing.assert_allclose(a.points, ref, atol=1e-5)
+    # the same motion carries other points of the prediction's frame (scipy's inverse as reference)
+    other = moved[::7] + np.array([0.0, 0.0, 0.05])
+    np.testing.assert_allclose(a.move(other), rot.inv().apply(other - shift), atol=1e-5)
     # scale stays fixed: a copy 20 % larger cannot be brought to zero
     big = align_rigid(1.2 * ref, ref, yaw_starts=4, iterations=30)
     assert big.chamfer_l2 > 1e-5

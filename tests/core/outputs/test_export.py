@@ -10,6 +10,7 @@ from shsas_core.outputs.export import (
     SCALAR_NAME,
     glb_offset,
     read_point_cloud_ply,
+    read_point_cloud_points,
     read_volume_npy,
     write_mesh_glb,
     write_mesh_ply,
@@ -71,6 +72,9 @@ def test_point_cloud_ply_scalar_property(tmp_path):
     tm = trimesh.load(tmp_path / "pc.ply")  # independent reader
     np.testing.assert_array_equal(tm.vertices, pc.points)
     np.testing.assert_allclose(tm.metadata["_ply_raw"]["vertex"]["data"][SCALAR_NAME], pc.scalars)
+    pts = read_point_cloud_points(tmp_path / "pc.ply")
+    assert pts.dtype == np.float64
+    np.testing.assert_array_equal(pts, tm.vertices)
 
 
 def test_volume_npy_roundtrip(tmp_path):
