@@ -77,7 +77,9 @@ are the fit's plus the new extraction's.
 ``--record`` also writes one result record per (regime, seed) of the profile's current spec (a
 row per scene and method, the mean over the scenes, the checks in its notes) into
 ``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
-``docs/results.md`` is generated from them by ``benchmarks/scoreboard.py``).
+``docs/results.md`` is generated from them by ``benchmarks/scoreboard.py``). The goals hold per
+CPU model, so a run on another CPU model than the stored record's is written beside it, its name
+ending in the CPU's (``fidelity-defaults-noisy-seed1-amd-epyc``), not over it.
 
 Simulated surveys are cached under ``--cache-dir`` (default ``$SHSAS_CACHE_DIR/fidelity`` or
 ``~/.cache/shsas/fidelity``), keyed by the scene, every simulation parameter and a digest of the
@@ -735,13 +737,25 @@ def report(profile_dir: Path, spec: ReconstructionSpec, machine: dict[str, Any])
     return summary
 
 
+def record_cpu(folder: Path, name: str) -> str | None:
+    """The CPU model of the stored record ``folder/<name>.json`` (None: no such record)."""
+    path = folder / f"{name}.json"
+    return json.loads(path.read_text()).get("machine", {}).get("cpu") if path.is_file() else None
+
+
+def slug(text: str) -> str:
+    """``text`` as a file-name part: lower case, runs of other characters as one hyphen."""
+    return "-".join("".join(ch if ch.isalnum() else " " for ch in text.lower()).split())
+
+
 def write_result_records(profile_dir: Path, profile: str, spec: ReconstructionSpec,
                          folder: Path | None = None) -> list[Path]:
     """One result record per (regime, seed) of the profile: a row per scene and method, then the
     mean over the scenes per method, with the regime's checks for that seed in the notes; only the
     entries measured with ``spec`` (the ones the tables use). Machine, load, date and commit are
-    the first entry's; the notes name any entry measured under others. ``folder``: where the
-    records go (default ``benchmarks/results/``)."""
+    the first entry's; the notes name any entry measured under others. A record of the same
+    regime and seed measured on another CPU model is kept: this one's name and title then name
+    its CPU. ``folder``: where the records go (default ``benchmarks/results/``)."""
     import records
 
     cells, _, _ = collect(profile_dir, spec)
@@ -769,11 +783,17 @@ def write_result_records(profile_dir: Path, profile: str, spec: ReconstructionSp
         checks = "; ".join(f"{ch.status} {ch.name}: {ch.detail}" for ch in regime_checks(regime, sel))
         notes = f"Checks (this seed): {checks}." + (f" Measured under other conditions: {'; '.join(differ)}." if differ else "")
         suite = "the suite" if scenes == list(SCENES) else ", ".join(scenes)
+        name = f"fidelity-{profile}-{regime}-seed{seed}"
+        title = f"Fidelity ({profile}): {regime} regime, {suite} ({len(scenes)} scene(s)), seed {seed}"
+        other_cpu = record_cpu(folder or records.RESULTS_DIR, name)
+        if other_cpu not in (None, m0.get("cpu")):
+            # the goals are per CPU model: a run on another one is a second measurement, not a newer one
+            name, title = f"{name}-{slug(str(m0.get('cpu')))}", f"{title}, {m0.get('cpu')}"
+        method_flag = "" if methods == list(METHODS) else f" --methods {','.join(methods)}"
         record = {
-            "schema": records.SCHEMA, "benchmark": "fidelity", "name": f"fidelity-{profile}-{regime}-seed{seed}",
-            "title": f"Fidelity ({profile}): {regime} regime, {suite} ({len(scenes)} scene(s)), seed {seed}",
+            "schema": records.SCHEMA, "benchmark": "fidelity", "name": name, "title": title,
             "command": (f"python benchmarks/bench_fidelity.py{' --paper' if profile == 'paper' else ''} "
-                        f"--regimes {regime} --scenes {','.join(scenes)} --seeds {seed}"),
+                        f"--regimes {regime} --scenes {','.join(scenes)}{method_flag} --seeds {seed}"),
             "machine": {"cpu": m0.get("cpu"), "cores": m0.get("nproc"), "gpu": m0.get("gpu"),
                         "torch": m0.get("torch")},
             "load": {"loadavg": m0.get("load_avg_before"), "note": ""},

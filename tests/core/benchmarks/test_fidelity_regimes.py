@@ -144,3 +144,46 @@ def test_reextract_reuses_only_finished_runs_of_the_same_spec_and_survey(bench) 
     assert not bench.reusable({}, "k", spec)
     with pytest.raises(SystemExit):
         bench.parse_args(["--fresh", "--reextract"])
+
+
+def _one_cell_profile(bench, root: Path, cpu: str, methods: tuple[str, ...]) -> Path:
+    """A profile folder holding one finished (noisy, bunny, seed 1) cell measured on ``cpu``."""
+    spec = bench.ReconstructionSpec()
+    machine = {"cpu": cpu, "nproc": 2, "gpu": None, "torch": "x", "load_avg_before": [0.1, 0.1, 0.1]}
+    profile = root / cpu / "defaults"
+    cell = profile / "noisy" / "bunny" / "seed1"
+    cell.mkdir(parents=True)
+    entries = {m: {"spec": spec.model_dump(mode="json"), "seconds": 1.0, "machine": machine, "code": "abc",
+                   "finished": "2026-11-28T14:00:00", "metrics": {"pc_surface_f1": 0.6}} for m in methods}
+    bench.write_json({"regime": "noisy", "scene": "bunny", "seed": 1, "methods": entries}, cell / "result.json")
+    return profile
+
+
+def test_a_record_from_another_cpu_model_is_kept_beside_not_replaced(bench, tmp_path) -> None:
+    spec = bench.ReconstructionSpec()
+    out = tmp_path / "records"
+    out.mkdir()
+    (xeon,) = bench.write_result_records(_one_cell_profile(bench, tmp_path, "Intel(R) Xeon(R) Processor",
+                                                           ("backprojection", "shsas")), "defaults", spec, folder=out)
+    (epyc,) = bench.write_result_records(_one_cell_profile(bench, tmp_path, "AMD EPYC", ("backprojection", "shsas")),
+                                         "defaults", spec, folder=out)
+    assert xeon.name == "fidelity-defaults-noisy-seed1.json"
+    assert epyc.name == "fidelity-defaults-noisy-seed1-amd-epyc.json"
+    assert json.loads(xeon.read_text())["machine"]["cpu"] == "Intel(R) Xeon(R) Processor"
+    assert json.loads(epyc.read_text())["title"].endswith(", AMD EPYC")
+    # a rerun on the stored record's own CPU model replaces it
+    (again,) = bench.write_result_records(_one_cell_profile(bench, tmp_path / "again", "Intel(R) Xeon(R) Processor",
+                                                            ("backprojection", "shsas")), "defaults", spec, folder=out)
+    assert again == xeon and sorted(p.name for p in out.iterdir()) == [epyc.name, xeon.name]
+
+
+def test_a_record_command_names_the_methods_it_ran(bench, tmp_path) -> None:
+    spec = bench.ReconstructionSpec()
+    out = tmp_path / "records"
+    out.mkdir()
+    (two,) = bench.write_result_records(_one_cell_profile(bench, tmp_path, "cpu a", ("backprojection", "shsas")),
+                                        "defaults", spec, folder=out)
+    assert "--methods backprojection,shsas --seeds 1" in json.loads(two.read_text())["command"]
+    (three,) = bench.write_result_records(_one_cell_profile(bench, tmp_path / "b", "cpu a", bench.METHODS),
+                                          "defaults", spec, folder=out)
+    assert "--methods" not in json.loads(three.read_text())["command"]
