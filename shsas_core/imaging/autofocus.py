@@ -434,8 +434,9 @@ def _search_points(survey: Survey, cfg: AutofocusConfig, plane_z: float | None) 
 def search_plane(survey: Survey, signals: np.ndarray, cfg: AutofocusConfig, pings: np.ndarray) -> FocusResult:
     """The plane a planar survey is searched in when ``cfg.plane_z`` is not given: the plane of
     best focus under the input geometry (:func:`shsas_core.imaging.planar.find_focus`), or the search's
-    edge with ``found`` False when the data hold no focus."""
-    return find_focus(survey, signals, measure=cfg.measure, pings=pings)
+    edge with ``found`` False when the data hold no focus. Its images are compiled: the
+    autofocus's own imaging compiles the kernel in this process anyway."""
+    return find_focus(survey, signals, measure=cfg.measure, pings=pings, compiled=True)
 
 
 def autofocus(survey: Survey, signals: np.ndarray | None = None, config: AutofocusConfig | None = None,

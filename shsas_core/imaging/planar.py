@@ -43,6 +43,12 @@ FOCUS_MEASURE: Sharpness = "entropy"
 FOCUS_MAX_PINGS = 360
 #: ... on at most this many coarse planes.
 FOCUS_MAX_PLANES = 240
+#: Whether the focus search's images run through the ``torch.compile``-d kernel. A search makes at
+#: most a few hundred small images (FOCUS_MAX_PLANES coarse planes, a Brent search, each of
+#: SEARCH_PIXELS² pixels over at most FOCUS_MAX_PINGS pings): compiling them costs more than it
+#: saves unless the process compiles anyway (autofocus does), so a report's search runs eagerly
+#: (benchmarks/bench_focus.py --backends eager,compiled prints both in fresh processes).
+FOCUS_COMPILED = False
 #: A focus must lie this far (nats of entropy, or of log contrast) below both ends of the
 #: search: near the sensors the measure flattens, and its noise there is a few thousandths.
 FOCUS_MIN_DEPTH = 0.02
@@ -161,7 +167,8 @@ def _without_ping_mean(survey: Survey, signals: np.ndarray) -> np.ndarray:
 
 def find_focus(survey: Survey, signals: np.ndarray, *, measure: Sharpness = FOCUS_MEASURE,
                z_range: tuple[float, float] | None = None, tolerance: float = 5e-4,
-               pixels: int = SEARCH_PIXELS, pings: np.ndarray | None = None) -> FocusResult:
+               pixels: int = SEARCH_PIXELS, pings: np.ndarray | None = None,
+               compiled: bool = FOCUS_COMPILED) -> FocusResult:
     """The height of the sharpest horizontal plane over the scene box's x-y extent.
 
     Coarse: the focus cost of low-resolution plane images every range resolution (at most
@@ -179,6 +186,8 @@ def find_focus(survey: Survey, signals: np.ndarray, *, measure: Sharpness = FOCU
         tolerance: the fine search's height tolerance, m.
         pixels: image pixels along the box's longest horizontal side.
         pings: which pings to image (default: at most :data:`FOCUS_MAX_PINGS`, evenly spread).
+        compiled: image through the compiled kernel (:data:`FOCUS_COMPILED`); the result is the
+            same to float rounding.
     """
     from scipy.optimize import minimize_scalar
 
@@ -193,7 +202,7 @@ def find_focus(survey: Survey, signals: np.ndarray, *, measure: Sharpness = FOCU
                           .round().astype(np.int64))
     # one image size for both passes: the cost's minimum over z is flat (on the AirSAS cut-out
     # within 0.001 nats over 15 mm), and a coarser image moved it by 13 mm
-    imager = QuickImager(survey, _without_ping_mean(survey, np.asarray(signals)), pings)
+    imager = QuickImager(survey, _without_ping_mean(survey, np.asarray(signals)), pings, compiled=compiled)
     idx = imager.pings
     geo = Geometry(survey.tx[idx], survey.rx[idx], survey.t0[idx], survey.meta.sound_speed)
     xy = plane_grid(box, 0.0, pixels).points()[:, :2]

@@ -38,6 +38,11 @@ FAST_TIMINGS = {
     "SHSAS_LOCAL_POLL_INTERVAL_S": "0.2",
 }
 
+#: A job that runs a few seconds, so a worker can be killed mid-job and the job still finish soon
+#: after. No warm start: its fixed budget (300 steps of 32k points) is a minute on two cores at
+#: any grid, paid again by the second attempt; resuming does not depend on how the field started.
+RESUMABLE_SPEC = {"methods": ["reed"], "iters": 200, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8,
+                  "init": "none"}
 
 #: How long the console tests wait for `shsas serve` to answer (imports take long on loaded cores).
 SERVER_START_S = 180

@@ -15,17 +15,23 @@ import numpy as np
 import pytest
 import trimesh
 
-from .conftest import FAST_TIMINGS, db_env, start_server, start_worker, submit, wait_for
+from .conftest import (
+    FAST_TIMINGS,
+    RESUMABLE_SPEC,
+    db_env,
+    start_server,
+    start_worker,
+    submit,
+    wait_for,
+)
 
 pytestmark = pytest.mark.service
 
 QUICK_SPEC = {"methods": ["backprojection"], "grid": 16, "device": "cpu"}
 LONG_SPEC = {"methods": ["shsas"], "iters": 100000, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
-#: Runs a few seconds, so a worker can be killed mid-job and the job still finish soon after.
-RESUMABLE_SPEC = {"methods": ["reed"], "iters": 40, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
 
 # how long a wait for a job's next state may take: the workers run at nice 10 (SHSAS_WORKER_NICE),
-# so on a machine busy with other work a 40-iteration job's stages take several times their idle
+# so on a machine busy with other work a short job's stages take several times their idle
 # length (one CI run beside a training job timed out at 60 s in the warm start); no speed is checked
 WAIT_S = 240
 

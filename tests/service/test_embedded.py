@@ -19,7 +19,15 @@ import trimesh
 
 from shsas_core.evaluation.diagnostics import COLLAPSE_SPREAD_LIMIT
 
-from .conftest import FAST_TIMINGS, db_env, start_server, submit, wait_for, write_tiny_survey
+from .conftest import (
+    FAST_TIMINGS,
+    RESUMABLE_SPEC,
+    db_env,
+    start_server,
+    submit,
+    wait_for,
+    write_tiny_survey,
+)
 
 pytestmark = pytest.mark.service
 
@@ -273,8 +281,7 @@ def test_local_worker_killed_mid_job_is_restarted_and_job_resumes(client, server
     import os
     import signal
 
-    spec = {"methods": ["reed"], "iters": 40, "grid": 16, "device": "cpu", "num_rays": 16, "num_bins": 8}
-    job = submit(client, survey_file, spec).json()
+    job = submit(client, survey_file, RESUMABLE_SPEC).json()
     wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] >= 0.25, 90, "job under way")
     victim = _local_worker_pid(server["proc"].pid)
     os.kill(victim, signal.SIGKILL)
