@@ -41,14 +41,14 @@ $(CONSOLE): $(CONSOLE_SRC)
 
 console: $(CONSOLE)
 
-# the whole suite in two runs: the science on two pytest-xdist workers (as test-fast), then the
-# service tests on their own, whose Redis, PostgreSQL, Celery worker and browser processes would
-# otherwise share the two cores with a training test and time out.
+# the whole suite in two runs side by side (tests/run_suite.py): the service tests, whose Redis,
+# PostgreSQL, Celery worker and browser processes must get a core when they want one, and the
+# science on two pytest-xdist workers (as test-fast) at the lowest CPU priority, filling the time
+# the service tests spend waiting. The science run's output follows the service run's.
 test: $(STAMP) $(CONSOLE)
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
-	$(BIN)/python -m pytest -q -m "not service" -n 2 --dist loadfile
-	$(BIN)/python -m pytest -q -m service
+	$(BIN)/python tests/run_suite.py
 
 # the inner loop: everything but the slow and the service tests (no Redis, PostgreSQL or browser),
 # on two pytest-xdist workers of one torch thread each (tests/conftest.py): most of the suite is

@@ -1,0 +1,72 @@
+"""Run the whole suite (``make test``): the service tests and, beside them, the science tests at
+the lowest CPU priority.
+
+Why side by side: the service tests spend much of their time waiting (for a server to answer, a
+worker to pick a job up, a lease to run out, a browser to draw), so run alone they keep about
+one of two cores busy; the science tests are CPU-bound. Run one after the other, the suite took
+the sum of both. Why the lowest priority: the service tests' processes (API servers, job
+workers, Chromium) must get a core when they want one, or their polls and deadlines stretch;
+the science tests only fill the time those leave idle.
+
+On Linux ``nice`` alone is not enough: with the scheduler's autogroups (``sched_autogroup``, on
+by default) niceness only ranks processes within one session, and every server the service tests
+start runs in a session of its own. So the science run gets a session of its own too, and that
+session's autogroup is set to niceness 19 (``/proc/self/autogroup``; where the file is missing,
+plain ``nice`` is what counts).
+
+Usage: ``python tests/run_suite.py [extra pytest options for both runs]``. Exits non-zero when
+either run fails; the science run's output follows the service run's.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: The science tests on two pytest-xdist workers (one torch thread each, tests/conftest.py);
+#: --dist loadfile keeps each module on one worker, so a module fixture is built once.
+SCIENCE = ["-m", "not service", "-n", "2", "--dist", "loadfile"]
+SERVICE = ["-m", "service"]
+LOWEST = 19
+
+
+def _lowest_priority() -> None:
+    """In the science child, before exec: its own session, at the lowest priority (module doc)."""
+    os.setsid()
+    with contextlib.suppress(OSError):
+        Path("/proc/self/autogroup").write_text(str(LOWEST))
+    with contextlib.suppress(OSError):
+        os.nice(LOWEST)
+
+
+def main(argv: list[str]) -> int:
+    pytest = [sys.executable, "-m", "pytest", "-q", *argv]
+    with tempfile.TemporaryFile(mode="w+") as science_log:
+        science = subprocess.Popen([*pytest, *SCIENCE], cwd=ROOT, stdout=science_log,
+                                   stderr=subprocess.STDOUT, preexec_fn=_lowest_priority)
+        try:
+            service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT)
+            science_rc = science.wait()
+        finally:
+            if science.poll() is None:  # interrupted: the science run's whole session goes too
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(science.pid, signal.SIGTERM)
+                science.wait()
+        science_log.seek(0)
+        print("\n== science tests (run beside the service tests, at the lowest CPU priority)", flush=True)
+        sys.stdout.write(science_log.read())
+    for name, rc in (("service", service_rc), ("science", science_rc)):
+        if rc != 0:
+            print(f"run_suite: the {name} tests failed (pytest exit code {rc})", file=sys.stderr)
+    return 0 if service_rc == 0 and science_rc == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
