@@ -38,8 +38,8 @@ LOWEST = 19
 
 
 def _lowest_priority() -> None:
-    """In the science child, before exec: its own session, at the lowest priority (module doc)."""
-    os.setsid()
+    """In the science child, after its new session is made and before exec: that session's
+    autogroup and the process at the lowest priority (module doc)."""
     with contextlib.suppress(OSError):
         Path("/proc/self/autogroup").write_text(str(LOWEST))
     with contextlib.suppress(OSError):
@@ -50,7 +50,8 @@ def main(argv: list[str]) -> int:
     pytest = [sys.executable, "-m", "pytest", "-q", *argv]
     with tempfile.TemporaryFile(mode="w+") as science_log:
         science = subprocess.Popen([*pytest, *SCIENCE], cwd=ROOT, stdout=science_log,
-                                   stderr=subprocess.STDOUT, preexec_fn=_lowest_priority)
+                                   stderr=subprocess.STDOUT, start_new_session=True,
+                                   preexec_fn=_lowest_priority)
         try:
             service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT)
             science_rc = science.wait()
