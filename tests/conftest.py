@@ -91,8 +91,9 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
 def slow_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
     """``items`` with the modules that hold a ``slow`` test first, each module's tests kept
     together and in order. Under pytest-xdist the workers are handed whole modules in this order
-    (``--dist loadfile``): a long module handed out last ran alone at the end while the other
-    worker idled (longest first is the classic greedy rule for two machines)."""
+    (``--dist loadfile --no-loadscope-reorder``; without the second option xdist hands them out
+    by number of tests, most first): a long module handed out last ran alone at the end while
+    the other worker idled (longest first is the classic greedy rule for two machines)."""
     def module(item: pytest.Item) -> str | None:
         mod = getattr(item, "module", None)
         return mod.__name__ if mod is not None else None
