@@ -72,7 +72,10 @@ def _one(args: argparse.Namespace) -> dict:
     cfg = TrainConfig(num_bins=bins, num_rays=rays, device=args.device, render=RenderConfig(backend="fast" if fast else "reference"))
     data = prepare_data(survey, sig, None, cfg.uniform_fraction)
     amp = Amplitude().to(dev)
-    opt = torch.optim.Adam([*list(field.parameters()), amp.log_amplitude], lr=1e-3)
+    from shsas_core.common import optim
+
+    optim.FUSED = not args.single_tensor_adam
+    opt = optim.adam([*list(field.parameters()), amp.log_amplitude], lr=1e-3)
 
     def step(i: int) -> None:
         gen = iteration_generator(0, i)
@@ -152,6 +155,8 @@ def main() -> None:
                     help="fast path without the C encoding kernel (SHSAS_NATIVE=0: the PyTorch fused ops)")
     ap.add_argument("--field-backend", help="FieldConfig.backend of the timed mode (default: native for fast, "
                     "reference for eager)")
+    ap.add_argument("--single-tensor-adam", action="store_true",
+                    help="torch's default Adam for the device instead of the product's fused one")
     ap.add_argument("--case", help=argparse.SUPPRESS)
     ap.add_argument("--mode", help=argparse.SUPPRESS)
     ap.add_argument("--record", action="store_true",
@@ -185,7 +190,8 @@ def main() -> None:
                    "--iters", str(args.iters), "--warmup", str(args.warmup), "--threads", str(args.threads),
                    "--encoding", args.encoding] + (["--renderer-only"] if args.renderer_only else []) \
                 + (["--field-backend", args.field_backend] if args.field_backend else []) \
-                + (["--no-heap-cache"] if args.no_heap_cache else [])
+                + (["--no-heap-cache"] if args.no_heap_cache else []) \
+                + (["--single-tensor-adam"] if args.single_tensor_adam else [])
             out = subprocess.run(cmd, capture_output=True, text=True)
             if out.returncode != 0:
                 print(f"{case} {mode} failed: {out.stderr.strip().splitlines()[-1:]}")

@@ -32,6 +32,7 @@ import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 
 from shsas_core.common.errors import ShsasError
+from shsas_core.common.optim import adam
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progress
 from shsas_core.data.volume import Volume
 from shsas_core.neural.fields.base import device_dtype
@@ -109,7 +110,7 @@ def distill(field: torch.nn.Module, volume: Volume, config: WarmStartConfig | No
     lo = torch.as_tensor(volume.grid.box_min, dtype=torch.float64)
     size = torch.as_tensor(np.asarray(volume.grid.box_max) - np.asarray(volume.grid.box_min), dtype=torch.float64)
     gen = torch.Generator().manual_seed(cfg.seed)
-    opt = torch.optim.Adam(field.parameters(), lr=cfg.lr)
+    opt = adam(field.parameters(), lr=cfg.lr)
     complex_target = target.shape[1] == 2
     mean_sq = float(target.pow(2).sum(1).mean())
     history: list[float] = []

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from shsas_core.common.optim import adam
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progress
 
 _PRIME = 2654435761  # spatial-hash prime of Instant-NGP for the second axis
@@ -171,7 +172,7 @@ def fit_batch(
     v = (torch.arange(b, device=dev, dtype=torch.float32) / max(b - 1, 1)).repeat_interleave(t)
     with torch.no_grad():
         idx, wts = net.encoding.lookup(u, v)
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    opt = adam(net.parameters(), lr=cfg.lr)
     floor = 1e-4
     terms: dict[str, float] = {}
     report = max(1, cfg.steps // 50)

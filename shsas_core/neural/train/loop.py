@@ -16,6 +16,7 @@ import torch
 from shsas_core.common.device import resolve_device
 from shsas_core.common.errors import Cancelled, ShsasError
 from shsas_core.common.heap import heap_cache
+from shsas_core.common.optim import adam, load_state
 from shsas_core.common.progress import ProgressFn, StopFn, check_stop, no_progress
 from shsas_core.neural.fields.base import device_dtype
 from shsas_core.neural.fields.occupancy import OccupancyGrid, within
@@ -97,7 +98,7 @@ class Trainer:
         self.dtype = device_dtype(field)[1]
         self.callbacks = schedules(field, cfg)
         self.amplitude = Amplitude().to(device)
-        self.optimizer = torch.optim.Adam([*field.parameters(), self.amplitude.log_amplitude], lr=cfg.lr)
+        self.optimizer = adam([*field.parameters(), self.amplitude.log_amplitude], lr=cfg.lr)
         box = self.survey.meta.scene_box
         self.tv_delta = cfg.tv_delta if cfg.tv_delta is not None else float(np.linalg.norm(box.size)) / 128
         self.fingerprint = fingerprint(cfg, field, self.data)
@@ -128,7 +129,7 @@ class Trainer:
                              "survey or field (fix: use a new output directory or delete it)")
         self.field.load_state_dict(ck["field"])
         self.amplitude.load_state_dict(ck["amplitude"])
-        self.optimizer.load_state_dict(ck["optimizer"])
+        load_state(self.optimizer, ck["optimizer"])
         for cb in self.callbacks:
             cb.resume(ck, path)
         self.start = self.iteration = int(ck["iteration"])

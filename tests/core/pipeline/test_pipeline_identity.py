@@ -6,7 +6,7 @@ same chain on a smaller survey, grid and iteration count (the full demo takes mi
 the SHA-256 of every method's saved ``{method}_volume.npy`` with digests recorded from the code
 before the issue-14 refactor. A change of behaviour anywhere in the chain (simulation,
 deconvolution, backprojection, warm start, occupancy, training, field evaluation, export) changes a
-digest. Five later, deliberate changes of the defaults are undone in the job, so the recorded
+digest. Six later, deliberate changes of the defaults are undone in the job, so the recorded
 digests still hold: the weight average of the neural methods (``average_last``, checked in
 test_train) is off, coarse-to-fine hash levels (``coarse_to_fine``, checked in test_train and
 test_fields) are off, the Lambertian normal is the sample's own (``normal_window = 1``; the window
@@ -14,7 +14,8 @@ is checked in test_render), the occupancy grid's floor test (``occupancy_floor``
 test_occupancy; on this sparse 2 x 20-ping survey the image's median is 0.18 of its peak, so the
 floor changes the mask) is off, and the ``cpu`` hash-encoding preset keeps its earlier 2^15 rows
 per level (today's 2^17 rows, the level ramp and the window were chosen by the fidelity benchmark,
-docs/decisions/).
+docs/decisions/). The fits also step with torch's single-tensor Adam, as they did then: the
+product's fused Adam applies the same update with other rounding (``shsas_core.common.optim``).
 
 The job runs in a fresh interpreter with one torch thread and ``OMP_NUM_THREADS=1``: float sums
 then run in one fixed order, so the bytes do not depend on the number of cores or on the state an
@@ -60,6 +61,7 @@ from pathlib import Path
 import torch
 
 torch.set_num_threads(1)
+from shsas_core.common import optim
 from shsas_core.neural.fields import encoding
 from shsas_core.pipeline.job import run
 from shsas_core.outputs.artifacts import artifact_names
@@ -73,8 +75,10 @@ out = Path(sys.argv[1])
 # test_occupancy); everything else runs as the product's defaults
 spec = ReconstructionSpec(iters=10, grid=16, device="cpu", average_last=None, coarse_to_fine=None,
                           normal_window=1, occupancy_floor=0.0)
-# and the table size of the cpu preset when they were recorded (2^17 rows since)
+# and the table size of the cpu preset when they were recorded (2^17 rows since), and torch's
+# single-tensor Adam (fused since: the same update, other rounding)
 encoding.PRESETS["cpu"] = encoding.HashEncodingConfig(log2_table_size=15)
+optim.FUSED = False
 assert spec.methods == ["backprojection", "reed", "shsas"]
 survey = simulate_shape("sphere", heights=2, angles=20, snr_db=20.0, seed=spec.seed)
 run(spec, survey, out)
