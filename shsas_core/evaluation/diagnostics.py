@@ -13,7 +13,8 @@ cheap enough to detect, that no result should leave the pipeline without being c
 * ``loss_not_falling`` — the fit's data loss (the ToF term, a relative residual: 1.0 = predicting
   zeros) ended where it started. Measure: mean data loss over the last :data:`LOSS_WINDOW` of the
   iterations / mean over the first; limit 0.9, lowered when the per-iteration noise is too large
-  to show a fall of 10 % (:func:`loss_limit`).
+  to show a fall of 10 % (:func:`loss_limit`). A fit that started from a field already explaining
+  most of the data (a warm start) is reported only when its loss rose (:data:`LOSS_EXPLAINED`).
 
 * ``mesh_pieces``, ``mesh_area_ratio``, ``mesh_normal_consistency`` — the extracted mesh is not
   one clean surface: it fails a bound of :class:`shsas_core.evaluation.metrics.MeshChecks` on the mesh
@@ -65,6 +66,14 @@ LOSS_RATIO_LIMIT = 0.90
 #: 10-iteration windows). The limit becomes ``min(LOSS_RATIO_LIMIT, 1 - LOSS_NOISE_SIGMAS * se)``:
 #: a fall no larger than twice its standard error is not shown to be a fall.
 LOSS_NOISE_SIGMAS = 2.0
+#: A first window whose mean data loss is below this started from a field that already explains
+#: most of the data (1.0 = predicting zeros): a warm start from the backprojection image, 0.16 on
+#: the noisy (5 dB) bunny of bench_fidelity.py (seed 1), which the fit took to 0.14: a ratio of
+#: 0.83 or 0.89 against a limit of 0.87, on either side by the rounding alone (single-tensor or
+#: fused Adam). Such a fit is reported only
+#: when its loss rose beyond the ratio's noise (``1 + LOSS_NOISE_SIGMAS * se``): a flat loss there
+#: is no failure to learn.
+LOSS_EXPLAINED = 0.5
 #: Share of the iterations averaged at each end of the loss history.
 LOSS_WINDOW = 0.10
 #: Fewer iterations than this are not judged: windows of fewer than 10 iterations give a
@@ -134,6 +143,13 @@ def loss_ratio(data_loss_history: Sequence[float]) -> tuple[float, float] | None
     return ratio, ratio * rel
 
 
+def first_window_mean(data_loss_history: Sequence[float]) -> float:
+    """Mean of the finite losses in the first :data:`LOSS_WINDOW` of the history (at least two)."""
+    h = [v for v in data_loss_history if math.isfinite(v)]
+    k = max(2, math.floor(len(h) * LOSS_WINDOW))
+    return float(np.mean(h[:k])) if h else math.nan
+
+
 def loss_limit(stderr: float) -> float:
     """The ratio at or above which the loss did not fall, for a ratio with standard error ``stderr``."""
     return max(0.0, min(LOSS_RATIO_LIMIT, 1.0 - LOSS_NOISE_SIGMAS * stderr))
@@ -170,21 +186,25 @@ def fit_warnings(data_loss_history: Sequence[float]) -> list[ResultWarning]:
 
     Returns:
         ``[loss_not_falling]`` when the late-to-early ratio reaches :func:`loss_limit` (0.9, lower
-        when the loss is too noisy to show a smaller fall), else ``[]`` (also when the history
-        is too short to judge).
+        when the loss is too noisy to show a smaller fall), or, for a fit whose first window was
+        already below :data:`LOSS_EXPLAINED`, when the ratio exceeds 1 by more than its noise;
+        else ``[]`` (also when the history is too short to judge).
     """
     found = loss_ratio(data_loss_history)
     if found is None:
         return []
     ratio, se = found
-    limit = loss_limit(se)
+    pct = round(100 * LOSS_WINDOW)
+    what = f"(mean of the last {pct} % of iterations / mean of the first {pct} %)"
+    if first_window_mean(data_loss_history) < LOSS_EXPLAINED:
+        limit = 1.0 + LOSS_NOISE_SIGMAS * se
+        message = f"the fit's data loss rose {what}: the fit lost part of what its start explained"
+    else:
+        limit = loss_limit(se)
+        message = f"the fit's data loss did not fall {what}: the field did not learn the data"
     if ratio < limit:
         return []
-    pct = round(100 * LOSS_WINDOW)
-    return [ResultWarning(
-        code="loss_not_falling", measure=ratio, limit=limit,
-        message=f"the fit's data loss did not fall (mean of the last {pct} % of iterations / "
-                f"mean of the first {pct} %): the field did not learn the data")]
+    return [ResultWarning(code="loss_not_falling", measure=ratio, limit=limit, message=message)]
 
 
 def mesh_warnings(metrics: Mapping[str, float | None], prefix: str = "mesh_") -> list[ResultWarning]:

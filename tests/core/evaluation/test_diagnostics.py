@@ -7,9 +7,11 @@ from shsas_core.data.volume import Grid, Volume
 from shsas_core.evaluation.diagnostics import (
     BOX_FILL_LIMIT,
     COLLAPSE_SPREAD_LIMIT,
+    LOSS_EXPLAINED,
     LOSS_MIN_ITERS,
     LOSS_RATIO_LIMIT,
     ResultWarning,
+    first_window_mean,
     fit_warnings,
     loss_limit,
     loss_ratio,
@@ -109,6 +111,24 @@ def test_a_flat_loss_is_not_falling() -> None:
     assert found[0].measure >= found[0].limit and found[0].limit <= LOSS_RATIO_LIMIT
     # a rising loss too
     assert [w.code for w in fit_warnings(np.linspace(0.5, 1.0, 100).tolist())] == ["loss_not_falling"]
+
+
+def test_a_flat_loss_after_a_warm_start_is_no_failure() -> None:
+    # a warm-started fit on a noisy survey: the field explains most of the data from the start
+    # (data loss ~0.16, batch noise as large as the mean) and the fit takes little more
+    rng = np.random.default_rng(8)
+    loss = np.linspace(0.16, 0.155, 2000) * rng.lognormal(-0.3, 0.75, 2000)
+    ratio, se = loss_ratio(loss)
+    assert first_window_mean(loss) < LOSS_EXPLAINED and ratio >= loss_limit(se)  # the fall rule's verdict
+    assert fit_warnings(loss.tolist()) == []
+
+
+def test_a_rise_after_a_warm_start_is_reported() -> None:
+    rng = np.random.default_rng(9)
+    loss = np.linspace(0.15, 0.4, 500) * (1 + 0.3 * rng.standard_normal(500))
+    (found,) = fit_warnings(loss.tolist())
+    assert found.code == "loss_not_falling" and "rose" in found.message
+    assert found.measure > found.limit > 1.0
 
 
 def test_a_fall_within_the_noise_is_not_a_fall() -> None:
