@@ -14,7 +14,7 @@ CONSOLE_SRC := $(wildcard web/src/*) web/build.mjs web/package.json web/package-
 .PHONY: venv demo test test-fast lint bench bench-fidelity clean console
 
 # The venv is filled by uv (installed into it by pip): the same packages as pip's resolver picks,
-# in about a quarter of pip's time (benchmarks/bench_venv.py). uv reads no pip configuration, so
+# in half of pip's time (benchmarks/bench_venv.py). uv reads no pip configuration, so
 # it is handed the wheel folders pip's configuration names (where a machine keeps its CPU build
 # of torch: pyproject pins torch==2.13.0, which a local 2.13.0+cpu wheel satisfies).
 FIND_LINKS = $(shell $(PY) -m pip config get global.find-links 2>/dev/null)

@@ -70,9 +70,8 @@ LOSS_NOISE_SIGMAS = 2.0
 #: most of the data (1.0 = predicting zeros): a warm start from the backprojection image, 0.16 on
 #: the noisy (5 dB) bunny of bench_fidelity.py (seed 1), which the fit took to 0.14: a ratio of
 #: 0.83 or 0.89 against a limit of 0.87, on either side by the rounding alone (single-tensor or
-#: fused Adam). Such a fit is reported only
-#: when its loss rose beyond the ratio's noise (``1 + LOSS_NOISE_SIGMAS * se``): a flat loss there
-#: is no failure to learn.
+#: fused Adam). Such a fit is reported only when its loss rose beyond the ratio's noise
+#: (``1 + LOSS_NOISE_SIGMAS * se``): a flat loss there is no failure to learn.
 LOSS_EXPLAINED = 0.5
 #: Share of the iterations averaged at each end of the loss history.
 LOSS_WINDOW = 0.10
@@ -124,15 +123,21 @@ def filled_share(volume: Volume, tau: float) -> float:
     return float(np.count_nonzero(norm >= tau)) / max(norm.size, 1)
 
 
+def loss_windows(data_loss_history: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """The first and the last :data:`LOSS_WINDOW` of the finite losses (at least two each)."""
+    h = np.asarray([v for v in data_loss_history if math.isfinite(v)], dtype=np.float64)
+    k = max(2, math.floor(len(h) * LOSS_WINDOW))
+    return h[:k], h[-k:]
+
+
 def loss_ratio(data_loss_history: Sequence[float]) -> tuple[float, float] | None:
     """``(ratio, standard error)``: ratio = mean(last :data:`LOSS_WINDOW`) / mean(first) of the
     finite losses, its standard error propagated from the two windows' standard errors of the
     mean. None when there are fewer than :data:`LOSS_MIN_ITERS` or the first mean is not positive."""
-    h = np.asarray([v for v in data_loss_history if math.isfinite(v)], dtype=np.float64)
-    if len(h) < LOSS_MIN_ITERS:
+    if sum(math.isfinite(v) for v in data_loss_history) < LOSS_MIN_ITERS:
         return None
-    k = max(2, math.floor(len(h) * LOSS_WINDOW))
-    a, b = h[:k], h[-k:]
+    a, b = loss_windows(data_loss_history)
+    k = len(a)
     first, last = float(a.mean()), float(b.mean())
     if not first > 0:
         return None
@@ -141,13 +146,6 @@ def loss_ratio(data_loss_history: Sequence[float]) -> tuple[float, float] | None
     rel = math.hypot(float(a.std(ddof=1)) / (first * math.sqrt(k)),
                      float(b.std(ddof=1)) / (max(last, 1e-30) * math.sqrt(k)))
     return ratio, ratio * rel
-
-
-def first_window_mean(data_loss_history: Sequence[float]) -> float:
-    """Mean of the finite losses in the first :data:`LOSS_WINDOW` of the history (at least two)."""
-    h = [v for v in data_loss_history if math.isfinite(v)]
-    k = max(2, math.floor(len(h) * LOSS_WINDOW))
-    return float(np.mean(h[:k])) if h else math.nan
 
 
 def loss_limit(stderr: float) -> float:
@@ -196,7 +194,7 @@ def fit_warnings(data_loss_history: Sequence[float]) -> list[ResultWarning]:
     ratio, se = found
     pct = round(100 * LOSS_WINDOW)
     what = f"(mean of the last {pct} % of iterations / mean of the first {pct} %)"
-    if first_window_mean(data_loss_history) < LOSS_EXPLAINED:
+    if float(loss_windows(data_loss_history)[0].mean()) < LOSS_EXPLAINED:
         limit = 1.0 + LOSS_NOISE_SIGMAS * se
         message = f"the fit's data loss rose {what}: the fit lost part of what its start explained"
     else:

@@ -11,10 +11,10 @@ from shsas_core.evaluation.diagnostics import (
     LOSS_MIN_ITERS,
     LOSS_RATIO_LIMIT,
     ResultWarning,
-    first_window_mean,
     fit_warnings,
     loss_limit,
     loss_ratio,
+    loss_windows,
     volume_warnings,
 )
 from shsas_core.evaluation.extract import extract
@@ -119,7 +119,7 @@ def test_a_flat_loss_after_a_warm_start_is_no_failure() -> None:
     rng = np.random.default_rng(8)
     loss = np.linspace(0.16, 0.155, 2000) * rng.lognormal(-0.3, 0.75, 2000)
     ratio, se = loss_ratio(loss)
-    assert first_window_mean(loss) < LOSS_EXPLAINED and ratio >= loss_limit(se)  # the fall rule's verdict
+    assert loss_windows(loss)[0].mean() < LOSS_EXPLAINED and ratio >= loss_limit(se)  # the fall rule's verdict
     assert fit_warnings(loss.tolist()) == []
 
 
