@@ -74,7 +74,8 @@ extraction changed, ``EXTRACT_VERSION``), so a change to the extraction alone is
 minutes, not hours; the entry names the code its fit was made at (``fit_code``) and its times
 are the fit's plus the new extraction's.
 
-``--record`` also writes one result record per (regime, seed) of the profile's current spec (a
+``--record`` also writes one result record per (regime, seed) the run measured (with ``--merge``:
+every (regime, seed) in ``--out``) of the profile's current spec (a
 row per scene and method, the mean over the scenes, the checks in its notes) into
 ``benchmarks/results/`` (``benchmarks/records.py`` has the schema; the scoreboard of
 ``docs/results.md`` is generated from them by ``benchmarks/scoreboard.py``). The goals hold per
@@ -749,20 +750,23 @@ def slug(text: str) -> str:
 
 
 def write_result_records(profile_dir: Path, profile: str, spec: ReconstructionSpec,
-                         folder: Path | None = None) -> list[Path]:
+                         folder: Path | None = None, only: set[tuple[str, int]] | None = None) -> list[Path]:
     """One result record per (regime, seed) of the profile: a row per scene and method, then the
     mean over the scenes per method, with the regime's checks for that seed in the notes; only the
     entries measured with ``spec`` (the ones the tables use). Machine, load, date and commit are
     the first entry's; the notes name any entry measured under others. A record of the same
     regime and seed measured on another CPU model is kept: this one's name and title then name
-    its CPU. ``folder``: where the records go (default ``benchmarks/results/``)."""
+    its CPU. ``folder``: where the records go (default ``benchmarks/results/``). ``only``: the
+    (regime, seed) pairs to write (a run's own; the folder may hold unfinished cells of others,
+    which must not become records); None writes every pair the folder holds (``--merge``)."""
     import records
 
     cells, _, _ = collect(profile_dir, spec)
     want = spec_key(spec)
     columns = [("row", "scene / method", ""), *((k, t, f) for k, t, f, _ in COLUMNS)]
     written = []
-    for regime, seed in sorted({(c.regime, c.seed) for c in cells}):
+    pairs = {(c.regime, c.seed) for c in cells}
+    for regime, seed in sorted(pairs if only is None else pairs & only):
         sel = [c for c in cells if c.regime == regime and c.seed == seed]
         scenes = [sc for sc in SCENES if any(c.scene == sc for c in sel)]
         methods = [m for m in METHODS if any(c.method == m for c in sel)]
@@ -870,8 +874,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--reextract", action="store_true", help="cells measured at other code with this spec "
                     "and survey: extract and score their stored reconstructions again, no refit (for a "
                     "change to the extraction alone; module doc)")
-    ap.add_argument("--record", action="store_true", help="write one result record per (regime, scene, "
-                    "seed) of the profile into benchmarks/results/ (the scoreboard's source)")
+    ap.add_argument("--record", action="store_true", help="write one result record per (regime, seed) "
+                    "this run measured (with --merge: every one in --out) into benchmarks/results/ "
+                    "(the scoreboard's source)")
     ap.add_argument("--meshes", help="folder with bunny.obj and armadillo.obj "
                     "(default $SHSAS_MESH_DIR or ../shared/data/meshes)")
     ap.add_argument("--cache-dir", help="simulated-survey cache (default $SHSAS_CACHE_DIR/fidelity "
@@ -926,7 +931,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"ran in {time.perf_counter() - t:.0f} s", flush=True)
     report(profile_dir, spec, machine)
     if args.record and profile != "dev":
-        for path in write_result_records(profile_dir, profile, spec):
+        ran = None if args.merge else {(r, seed) for r in regimes for seed in seeds}
+        for path in write_result_records(profile_dir, profile, spec, only=ran):
             print(f"record: {path}")
     return 0 if ok else 1
 

@@ -187,3 +187,20 @@ def test_a_record_command_names_the_methods_it_ran(bench, tmp_path) -> None:
     (three,) = bench.write_result_records(_one_cell_profile(bench, tmp_path / "b", "cpu a", bench.METHODS),
                                           "defaults", spec, folder=out)
     assert "--methods" not in json.loads(three.read_text())["command"]
+
+
+def test_a_run_records_only_the_regimes_and_seeds_it_measured(bench, tmp_path) -> None:
+    # the --out folder also holds a cell of another (regime, seed), left by an earlier run that was
+    # stopped: a run's --record must not turn it into a record; --merge records what the folder holds
+    spec = bench.ReconstructionSpec()
+    profile = _one_cell_profile(bench, tmp_path, "cpu a", ("backprojection", "shsas"))
+    dense = profile / "dense" / "bunny" / "seed0"
+    dense.mkdir(parents=True)
+    noisy = json.loads((profile / "noisy" / "bunny" / "seed1" / "result.json").read_text())
+    bench.write_json({**noisy, "regime": "dense", "seed": 0}, dense / "result.json")
+    out = tmp_path / "records"
+    out.mkdir()
+    (run,) = bench.write_result_records(profile, "defaults", spec, folder=out, only={("dense", 0)})
+    assert run.name == "fidelity-defaults-dense-seed0.json" and [p.name for p in out.iterdir()] == [run.name]
+    merged = bench.write_result_records(profile, "defaults", spec, folder=out)
+    assert sorted(p.name for p in merged) == ["fidelity-defaults-dense-seed0.json", "fidelity-defaults-noisy-seed1.json"]
