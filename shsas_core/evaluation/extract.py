@@ -20,8 +20,11 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    keeps too much near the object in a large box, or too little in a tight one. Each voxel is
    compared with the mean magnitude in a cube of ``background_window`` metres around it (wider
    than the point-spread function, so a surface is a small part of the cube; cell-averaging
-   CFAR). For a background of Rayleigh-distributed magnitudes (a sum of many random-phase echoes)
-   a voxel exceeds ``k`` times the local mean with probability ``exp(-π k² / 4)``:
+   CFAR), over the voxels the volume holds an estimate for (``background = "estimated"``): a
+   neural field is zero outside its occupancy mask, which says nothing of the background there,
+   and counted as dark those zeros let faint sheets by the mask's edge pass as surface (on
+   sparse surveys the neural meshes came out at twice the true area). For a background of
+   Rayleigh-distributed magnitudes (a sum of many random-phase echoes) a voxel exceeds ``k`` times the local mean with probability ``exp(-π k² / 4)``:
    ``contrast_strong = 3`` is a false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of
    7.4e-3. Ridge voxels at ``contrast_weak`` are kept when their connected piece of ridge holds one
    at ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
@@ -109,6 +112,11 @@ class ExtractConfig(BaseModel):
     contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
                                  "background mean when connected to a strong one")
     contrast_strong: float = Field(3.0, gt=0, description="a ridge piece needs one voxel at this multiple")
+    background: Literal["estimated", "all"] = Field("estimated", description="the voxels the contrast "
+                                                    "test's local mean is taken over: 'estimated' leaves "
+                                                    "out those of zero magnitude (no estimate: outside a "
+                                                    "neural field's occupancy mask), 'all' counts them as "
+                                                    "dark background")
     fog_share: float | None = Field(None, ge=0, le=1, description="the fog step for a neural field's "
                                     "ridge (module doc, step 2): when more than this share of it lies below "
                                     "τ, those points go and each piece must reach Otsu's level of the ridge's "
@@ -224,18 +232,28 @@ def mesh(volume: Volume, tau: float, close_boundary: bool = True):
     return trimesh.Trimesh(verts, faces, process=False)
 
 
-def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float) -> np.ndarray:
+def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float,
+                   support: np.ndarray | None = None) -> np.ndarray:
     """``norm`` over its mean in a cube of edge ``window`` m around each voxel (module doc, step 2).
 
     Args:
         norm: (X, Y, Z) normalised magnitude; spacing: (3,) voxel size, m.
+        support: (X, Y, Z) bool, the voxels the volume holds an estimate for; the mean is taken
+            over those alone (None: every voxel).
     Returns:
-        (X, Y, Z) float32 ratio (0 where the local mean is 0).
+        (X, Y, Z) float32 ratio (0 where the local mean is 0 or no estimate lies in the cube).
     """
     from scipy import ndimage
 
     size = [max(3, round(window / float(h)) | 1) for h in spacing]  # odd, at least 3 voxels
-    mean = ndimage.uniform_filter(norm.astype(np.float64), size=size, mode="nearest")
+    values = norm.astype(np.float64) if support is None else np.where(support, norm, 0.0)
+    total = ndimage.uniform_filter(values, size=size, mode="nearest")
+    if support is None:
+        mean = total
+    else:
+        share = ndimage.uniform_filter(support.astype(np.float64), size=size, mode="nearest")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean = np.where(share > 1e-9, total / share, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(mean > 0, norm / mean, 0.0)
     return ratio.astype(np.float32)
@@ -296,7 +314,8 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     # grid over the same image must find the same ridge
     voxels = res / float(np.min(grid.spacing))
     sigma, sigma_n = cfg.smoothing * voxels, cfg.normal_smoothing * voxels
-    contrast = local_contrast(norm, grid.spacing, cfg.background_window)
+    support = volume.magnitude() > 0 if cfg.background == "estimated" else None
+    contrast = local_contrast(norm, grid.spacing, cfg.background_window, support)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
     lo = np.asarray(grid.box_min)
     r = ridge(norm, (norm >= cfg.candidate_share * tau) & (contrast >= weak), lo, grid.spacing, sigma)

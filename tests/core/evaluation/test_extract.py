@@ -140,3 +140,47 @@ def test_a_double_sheet_7_5_mm_apart_meshes_as_one_sheet():
     assert centre.sum() > 100
     np.testing.assert_allclose(m.triangles_center[centre, 2], 0.0, atol=0.002)  # one sheet, on the bright one
     assert 0.8 < m.area / 0.01 < 1.5
+
+
+def test_local_contrast_over_the_estimated_voxels_matches_a_brute_force_mean():
+    from shsas_core.evaluation.extract import local_contrast
+
+    rng = np.random.default_rng(3)
+    norm = rng.random((9, 8, 7)).astype(np.float32)
+    support = rng.random(norm.shape) < 0.6
+    norm[~support] = 0.0
+    h = np.array([0.01, 0.01, 0.01])
+    got = local_contrast(norm, h, 0.03, support)  # a 3-voxel cube
+    plain = local_contrast(norm, h, 0.03)
+    pad_v = np.pad(norm.astype(np.float64), 1, mode="edge")
+    pad_s = np.pad(support, 1, mode="edge")
+    for i, j, k in np.ndindex(norm.shape):
+        v, s = pad_v[i:i + 3, j:j + 3, k:k + 3], pad_s[i:i + 3, j:j + 3, k:k + 3]
+        mean = v[s].mean() if s.any() else 0.0
+        assert got[i, j, k] == pytest.approx(norm[i, j, k] / mean if mean > 0 else 0.0, rel=1e-4, abs=1e-6)
+        assert plain[i, j, k] == pytest.approx(norm[i, j, k] / v.mean() if v.mean() > 0 else 0.0, rel=1e-4,
+                                               abs=1e-6)
+
+
+def test_a_faint_sheet_by_the_edge_of_a_neural_mask_is_no_surface():
+    # a bright plane inside a slab where a field was evaluated (faint noise everywhere in it), a
+    # faint plane 5 mm inside the slab's edge, and zeros outside (no estimate: the occupancy
+    # mask). Counted as dark background, the zeros nearly halve the faint plane's local mean and
+    # it passes the contrast test; over the estimated voxels alone it does not
+    rng = np.random.default_rng(4)
+    g = Grid((-0.06, -0.06, -0.08), (0.06, 0.06, 0.08), (48, 48, 64))
+    z = g.points().reshape(*g.shape, 3)[..., 2]
+    slab = (z > -0.055) & (z < 0.035)
+    bright_at, faint_at = -0.04, 0.03
+
+    def sheet(at: float) -> np.ndarray:
+        return np.exp(-0.5 * ((z - at) / 0.002) ** 2)
+
+    values = (sheet(bright_at) + 0.1 * sheet(faint_at) + 0.1 * rng.random(g.shape)) * slab
+    vol = Volume(g, values.astype(np.float32))
+    sensors = np.array([[0.0, 0.0, 1.0]])
+    near = lambda cloud, at: int(np.sum(np.abs(cloud.points[:, 2] - at) < 0.003))  # noqa: E731
+    _, dark, _ = extract(vol, ExtractConfig(background="all", threshold=0.15), sensors=sensors)
+    _, est, _ = extract(vol, ExtractConfig(threshold=0.15), sensors=sensors)
+    assert near(dark, faint_at) > 500 and near(dark, bright_at) > 1000
+    assert near(est, faint_at) < 0.05 * near(dark, faint_at) and near(est, bright_at) > 1000
