@@ -24,17 +24,19 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    neural field is zero outside its occupancy mask, which says nothing of the background there,
    and counted as dark those zeros let faint sheets by the mask's edge pass as surface (on
    sparse surveys the neural meshes came out at twice the true area). For a background of
-   Rayleigh-distributed magnitudes (a sum of many random-phase echoes) a voxel exceeds ``k`` times the local mean with probability ``exp(-π k² / 4)``:
-   ``contrast_strong = 3`` is a false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of
-   7.4e-3. Ridge voxels at ``contrast_weak`` are kept when their connected piece of ridge holds one
-   at ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
+   Rayleigh-distributed magnitudes (a sum of many random-phase echoes) a voxel exceeds ``k``
+   times the local mean with probability ``exp(-π k² / 4)``: ``contrast_strong = 3`` is a
+   false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of 7.4e-3. Ridge voxels at
+   ``contrast_weak`` are kept when their connected piece of ridge holds one at
+   ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
    sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
    object fills the window) keeps its whole ridge above τ.
    **Fog** (``fog_share``; off by default): a candidate for a neural field's volume, measured
-   and not adopted (docs/results.md, "A fog step for the neural ridge"). On sparse surveys the
-   fit leaves faint sheets in empty space that pass the contrast test; when more than
-   ``fog_share`` of the ridge lies below τ, the points below τ go, and each remaining piece must
-   hold a point at or above Otsu's level of the ridge's own magnitudes.
+   and not adopted (docs/results.md, "A fog step for the neural ridge", with the old
+   background). On sparse surveys the fit leaves faint sheets in empty space that passed the
+   contrast test; when more than ``fog_share`` of the ridge lies below τ, the points below τ
+   go, and each remaining piece must hold a point at or above Otsu's level of the ridge's own
+   magnitudes.
 3. **Ridge:** non-maximum suppression across the shell (:mod:`shsas_core.evaluation.ridge`): one sheet of
    sub-voxel points where the magnitude peaks, instead of the shell's full thickness, in the
    magnitude smoothed over ``smoothing`` range resolutions (the scales of steps 3-5 are shares of
