@@ -20,10 +20,9 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    keeps too much near the object in a large box, or too little in a tight one. Each voxel is
    compared with the mean magnitude in a cube of ``background_window`` metres around it (wider
    than the point-spread function, so a surface is a small part of the cube; cell-averaging
-   CFAR), over the voxels the volume holds an estimate for (``background = "estimated"``): a
-   neural field is zero outside its occupancy mask, which says nothing of the background there,
-   and counted as dark those zeros let faint sheets by the mask's edge pass as surface (on
-   sparse surveys the neural meshes came out at twice the true area). For a background of
+   CFAR), zeros included (``background = "all"``; ``"estimated"`` takes the mean over the
+   voxels of non-zero magnitude alone, a candidate measured and not adopted:
+   docs/decisions/contrast-over-estimated-voxels.md). For a background of
    Rayleigh-distributed magnitudes (a sum of many random-phase echoes) a voxel exceeds ``k``
    times the local mean with probability ``exp(-π k² / 4)``: ``contrast_strong = 3`` is a
    false-alarm rate of 8.5e-4 per voxel, ``contrast_weak = 2.5`` of 7.4e-3. Ridge voxels at
@@ -114,7 +113,7 @@ class ExtractConfig(BaseModel):
     contrast_weak: float = Field(2.5, gt=0, description="ridge voxels kept at this multiple of the local "
                                  "background mean when connected to a strong one")
     contrast_strong: float = Field(3.0, gt=0, description="a ridge piece needs one voxel at this multiple")
-    background: Literal["estimated", "all"] = Field("estimated", description="the voxels the contrast "
+    background: Literal["estimated", "all"] = Field("all", description="the voxels the contrast "
                                                     "test's local mean is taken over: 'estimated' leaves "
                                                     "out those of zero magnitude (no estimate: outside a "
                                                     "neural field's occupancy mask), 'all' counts them as "
