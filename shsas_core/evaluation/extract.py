@@ -248,13 +248,11 @@ def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float,
 
     size = [max(3, round(window / float(h)) | 1) for h in spacing]  # odd, at least 3 voxels
     values = norm.astype(np.float64) if support is None else np.where(support, norm, 0.0)
-    total = ndimage.uniform_filter(values, size=size, mode="nearest")
-    if support is None:
-        mean = total
-    else:
+    mean = ndimage.uniform_filter(values, size=size, mode="nearest")
+    if support is not None:
         share = ndimage.uniform_filter(support.astype(np.float64), size=size, mode="nearest")
         with np.errstate(divide="ignore", invalid="ignore"):
-            mean = np.where(share > 1e-9, total / share, 0.0)
+            mean = np.where(share > 1e-9, mean / share, 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(mean > 0, norm / mean, 0.0)
     return ratio.astype(np.float32)
