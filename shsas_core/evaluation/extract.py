@@ -30,6 +30,13 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
    sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
    object fills the window) keeps its whole ridge above τ.
+   **The edge of the estimate** (``support_margin``): a neural field is evaluated inside its
+   occupancy mask only and is exactly zero elsewhere. Within a range resolution or so of the
+   mask's edge the smoothed magnitude and the local mean both see that cut-off rather than the
+   data, and on sparse surveys the fit leaves faint sheets there that pass the test (the neural
+   meshes were foams at twice the true area). Ridge candidates must lie ``support_margin`` range
+   resolutions inside the voxels of non-zero magnitude; a backprojection image, non-zero
+   everywhere, is untouched (docs/decisions/estimate-edge-margin.md).
    **Fog** (``fog_share``; off by default): a candidate for a neural field's volume, measured
    and not adopted (docs/results.md, "A fog step for the neural ridge", with the old
    background). On sparse surveys the fit leaves faint sheets in empty space that passed the
@@ -118,6 +125,9 @@ class ExtractConfig(BaseModel):
                                                     "out those of zero magnitude (no estimate: outside a "
                                                     "neural field's occupancy mask), 'all' counts them as "
                                                     "dark background")
+    support_margin: float = Field(1.25, ge=0, le=5, description="ridge candidates lie at least this "
+                                  "many range resolutions inside the voxels the volume estimates (non-zero "
+                                  "magnitude: a neural field's occupancy mask); 0: off")
     fog_share: float | None = Field(None, ge=0, le=1, description="the fog step for a neural field's "
                                     "ridge (module doc, step 2): when more than this share of it lies below "
                                     "τ, those points go and each piece must reach Otsu's level of the ridge's "
@@ -258,6 +268,16 @@ def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float,
     return ratio.astype(np.float32)
 
 
+def inside_support(support: np.ndarray, spacing: np.ndarray, margin: float) -> np.ndarray:
+    """(X, Y, Z) bool: the voxels of ``support`` (X, Y, Z bool) at least ``margin`` m from every
+    voxel outside it (all of it when nothing lies outside)."""
+    from scipy import ndimage
+
+    if support.all():
+        return support.copy()
+    return ndimage.distance_transform_edt(support, sampling=np.asarray(spacing, dtype=np.float64)) >= margin
+
+
 def resolution_m(spacing: float, config: ExtractConfig, resolution: float | None) -> float:
     """The range resolution the extraction's scales are measured in, m: ``resolution`` (the
     survey's ``c / 2B``) when given, else ``config.resolution_voxels`` voxels of ``spacing`` m."""
@@ -317,7 +337,10 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     contrast = local_contrast(norm, grid.spacing, cfg.background_window, support)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
     lo = np.asarray(grid.box_min)
-    r = ridge(norm, (norm >= cfg.candidate_share * tau) & (contrast >= weak), lo, grid.spacing, sigma)
+    candidates = (norm >= cfg.candidate_share * tau) & (contrast >= weak)
+    if cfg.support_margin > 0:
+        candidates &= inside_support(volume.magnitude() > 0, grid.spacing, cfg.support_margin * res)
+    r = ridge(norm, candidates, lo, grid.spacing, sigma)
     r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
     r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
     if len(r) < max(grid.shape):

@@ -131,7 +131,9 @@ def test_a_double_sheet_7_5_mm_apart_meshes_as_one_sheet():
     def sheet(at: float) -> np.ndarray:
         return np.exp(-0.5 * ((z - at) / 0.002) ** 2)
 
-    vol = Volume(g, ((sheet(0.0) + 0.5 * sheet(0.0075)) * inside).astype(np.float32))
+    # a faint floor everywhere, as an image has: exact zeros would read as no estimate (a neural
+    # field's mask), whose edge the ridge keeps away from
+    vol = Volume(g, ((sheet(0.0) + 0.5 * sheet(0.0075)) * inside + 1e-4).astype(np.float32))
     ang = np.linspace(0, 2 * np.pi, 90, endpoint=False)
     sensors = np.stack([0.85 * np.cos(ang), 0.85 * np.sin(ang), np.full(90, 0.5)], 1)
     _, cloud, m = extract(vol, sensors=sensors, resolution=343.0 / (2 * 20e3))
@@ -180,7 +182,27 @@ def test_a_faint_sheet_by_the_edge_of_a_neural_mask_is_no_surface():
     vol = Volume(g, values.astype(np.float32))
     sensors = np.array([[0.0, 0.0, 1.0]])
     near = lambda cloud, at: int(np.sum(np.abs(cloud.points[:, 2] - at) < 0.003))  # noqa: E731
-    _, dark, _ = extract(vol, ExtractConfig(background="all", threshold=0.15), sensors=sensors)
-    _, est, _ = extract(vol, ExtractConfig(background="estimated", threshold=0.15), sensors=sensors)
+    _, dark, _ = extract(vol, ExtractConfig(background="all", threshold=0.15, support_margin=0), sensors=sensors)
+    _, est, _ = extract(vol, ExtractConfig(background="estimated", threshold=0.15, support_margin=0),
+                        sensors=sensors)
     assert near(dark, faint_at) > 500 and near(dark, bright_at) > 1000
     assert near(est, faint_at) < 0.05 * near(dark, faint_at) and near(est, bright_at) > 1000
+    # the default keeps ridge candidates over a range resolution (8.5 mm here) inside the
+    # estimate: the faint plane 5 mm inside goes, the bright one 15 mm inside stays
+    _, default, _ = extract(vol, ExtractConfig(threshold=0.15), sensors=sensors)
+    assert near(default, faint_at) == 0 and near(default, bright_at) > 1000
+
+
+def test_inside_support_matches_a_brute_force_distance():
+    from shsas_core.evaluation.extract import inside_support
+
+    rng = np.random.default_rng(5)
+    support = rng.random((10, 9, 8)) < 0.8
+    h = np.array([0.01, 0.02, 0.015])
+    got = inside_support(support, h, 0.0255)
+    centres = np.indices(support.shape).reshape(3, -1).T * h
+    outside = centres[~support.ravel()]
+    for n, c in enumerate(centres):
+        nearest = np.sqrt(((outside - c) ** 2).sum(axis=1)).min()
+        assert got.ravel()[n] == (bool(support.ravel()[n]) and nearest >= 0.0255)
+    assert inside_support(np.ones((3, 3, 3), bool), h, 0.025).all()  # nothing outside: all of it
