@@ -333,13 +333,14 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     # grid over the same image must find the same ridge
     voxels = res / float(np.min(grid.spacing))
     sigma, sigma_n = cfg.smoothing * voxels, cfg.normal_smoothing * voxels
-    support = volume.magnitude() > 0 if cfg.background == "estimated" else None
-    contrast = local_contrast(norm, grid.spacing, cfg.background_window, support)
+    estimated = volume.magnitude() > 0
+    contrast = local_contrast(norm, grid.spacing, cfg.background_window,
+                              estimated if cfg.background == "estimated" else None)
     weak = min(cfg.contrast_weak, cfg.contrast_strong)
     lo = np.asarray(grid.box_min)
     candidates = (norm >= cfg.candidate_share * tau) & (contrast >= weak)
     if cfg.support_margin > 0:
-        candidates &= inside_support(volume.magnitude() > 0, grid.spacing, cfg.support_margin * res)
+        candidates &= inside_support(estimated, grid.spacing, cfg.support_margin * res)
     r = ridge(norm, candidates, lo, grid.spacing, sigma)
     r = dataclasses.replace(r, values=contrast[tuple(r.index.T)])
     r = connected_to_strong(r, grid.shape, cfg.contrast_strong)
