@@ -187,7 +187,7 @@ def test_a_faint_sheet_by_the_edge_of_a_neural_mask_is_no_surface():
                         sensors=sensors)
     assert near(dark, faint_at) > 500 and near(dark, bright_at) > 1000
     assert near(est, faint_at) < 0.05 * near(dark, faint_at) and near(est, bright_at) > 1000
-    # the default keeps ridge candidates over a range resolution (8.5 mm here) inside the
+    # the default keeps ridge candidates 1.25 range resolutions (10.6 mm here) inside the
     # estimate: the faint plane 5 mm inside goes, the bright one 15 mm inside stays
     _, default, _ = extract(vol, ExtractConfig(threshold=0.15), sensors=sensors)
     assert near(default, faint_at) == 0 and near(default, bright_at) > 1000
