@@ -27,7 +27,7 @@ DOC = rec.ROOT / "docs" / "results.md"
 BEGIN = "<!-- scoreboard:begin -->"
 END = "<!-- scoreboard:end -->"
 #: Sections in this order of benchmark, then by record name.
-ORDER = ("demo", "fidelity", "extract", "metrics", "backprojection", "train")
+ORDER = ("demo", "fidelity", "variants", "extract", "metrics", "backprojection", "train")
 MISSING = "–"
 
 

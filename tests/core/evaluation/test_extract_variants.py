@@ -1,8 +1,9 @@
 """The default extraction keeps the surface on surveys unlike the simulator's defaults.
 
-Four variants of one small bunny survey (10 rings of 90 pings), each changing one thing the extraction must not depend
-on: records that start at transmit and run long (``t0 = 0``, a guard of 700 samples), a scene box
-much larger and taller than the object, another sample rate, and 5 dB SNR. On each the default
+Four variants (``shsas_core.simulation.variants``) of one small bunny survey (10 rings of 90
+pings), each changing one thing the extraction must not depend on: records that start at transmit
+and run long (``t0 = 0``, a guard of 700 samples), a scene box much larger and taller than the
+object, another sample rate, and 5 dB SNR. On each the default
 extraction of the backprojection image must keep points on the ground-truth surface (at least
 70 % within 1 cm of the mesh, and a larger share than the paper's Otsu cloud keeps) and about as
 many as the surface holds (its area over the voxel face), and the default mesh must be at most 3
@@ -19,7 +20,6 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import Grid, auto_grid_count
 from shsas_core.evaluation.extract import extract, point_cloud
 from shsas_core.imaging.backprojection import backproject_survey
@@ -27,21 +27,10 @@ from shsas_core.signal.deconv import deconvolve
 from shsas_core.signal.sources import deconv_config
 from shsas_core.simulation.shapes import load_mesh
 from shsas_core.simulation.simulate import simulate_shape
+from shsas_core.simulation.variants import variant_overrides
 from shsas_core.spec.job import ReconstructionSpec
 
 pytestmark = pytest.mark.slow
-
-
-def variant(name: str, bunny: str) -> dict:
-    if name == "long_from_transmit":
-        return {"guard_samples": 700}
-    if name == "large_box":
-        lo, hi = load_mesh(bunny).bounds
-        grow_lo, grow_hi = np.array([0.08, 0.08, 0.02]), np.array([0.08, 0.08, 0.2])  # much taller too
-        return {"scene_box": SceneBox(min=tuple(lo - grow_lo), max=tuple(hi + grow_hi))}
-    if name == "sample_rate":
-        return {"fs": 250e3}
-    return {"snr_db": 5.0}
 
 
 def pieces95(mesh) -> int:
@@ -52,7 +41,7 @@ def pieces95(mesh) -> int:
 @pytest.mark.parametrize("name", ["long_from_transmit", "large_box", "sample_rate", "snr_5db"])
 def test_default_extraction_keeps_the_surface(name: str, shared) -> None:
     bunny = str(shared / "data" / "meshes" / "bunny.obj")
-    kw = variant(name, bunny)
+    kw = variant_overrides(name, load_mesh(bunny).bounds)
     snr = kw.pop("snr_db", 20.0)
     survey = simulate_shape(bunny, heights=10, angles=90, snr_db=snr, seed=0, **kw)
     if name == "long_from_transmit":
