@@ -28,7 +28,7 @@ sys.path.insert(0, str(records.ROOT))
 from shsas_core.spec.catalogue import LABELS
 
 ROOT = records.ROOT
-DEFAULT_MESH = ROOT.parent / "shared" / "data" / "meshes" / "bunny.obj"
+DEFAULT_MESH = records.SHARED_MESHES / "bunny.obj"
 COLUMNS = (("method", "method", ""),
            ("mesh_surface_f1", "surface F1 mesh", "{:.3f}"), ("pc_surface_f1", "surface F1 cloud", "{:.3f}"),
            ("mesh_fscore", "F@5mm mesh", "{:.3f}"), ("pc_fscore", "F@5mm cloud", "{:.3f}"),

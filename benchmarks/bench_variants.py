@@ -37,8 +37,7 @@ from shsas_core.cli.demo import DEMO_ANGLES, DEMO_HEIGHTS
 from shsas_core.spec.catalogue import LABELS
 from shsas_core.spec.job import METHODS, ReconstructionSpec
 
-ROOT = records.ROOT
-DEFAULT_MESH = ROOT.parent / "shared" / "data" / "meshes" / "bunny.obj"
+DEFAULT_MESH = records.SHARED_MESHES / "bunny.obj"
 COLUMNS = (("row", "variant / method", ""),
            ("pc_surface_f1", "surface F1 cloud ↑", "{:.3f}"), ("mesh_surface_f1", "surface F1 mesh ↑", "{:.3f}"),
            ("pc_fscore", "F@5mm cloud ↑", "{:.3f}"), ("cloud_share", "cloud / surface voxels", "{:.2f}"),
@@ -94,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mesh", default=str(DEFAULT_MESH), help="mesh to simulate (default the bunny of ../shared)")
     ap.add_argument("--variants", default=",".join(VARIANTS), help=f"comma list (default all: {','.join(VARIANTS)})")
     ap.add_argument("--methods", default=",".join(METHODS), help=f"comma list (default {','.join(METHODS)})")
-    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "out" / "variants"), help="artifacts folder")
+    ap.add_argument("--out", default=str(records.ROOT / "benchmarks" / "out" / "variants"), help="artifacts folder")
     ap.add_argument("--record", action="store_true", help="write benchmarks/results/variants-<scene>.json")
     args = ap.parse_args(argv)
     names = [v for v in args.variants.split(",") if v]

@@ -54,6 +54,8 @@ from shsas_core.common.machine import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS_DIR = ROOT / "benchmarks" / "results"
+#: The meshes of ``../shared`` beside the repository (read in place, never copied in).
+SHARED_MESHES = ROOT.parent / "shared" / "data" / "meshes"
 SCHEMA = 1
 REQUIRED = ("schema", "benchmark", "name", "title", "command", "machine", "load", "date", "commit",
             "transcribed", "columns", "rows", "notes")
