@@ -10,6 +10,12 @@ cheap enough to detect, that no result should leave the pipeline without being c
   scene box instead of tracing a surface: a fog of density, not an object. Measure: voxels at or
   above τ / grid voxels (the whole cloud of a threshold extraction; the ridge extraction's
   candidates start lower, at half of τ, and go through its contrast test).
+* ``surface_unclear`` — the ridge extraction's surface test (its local contrast, module doc of
+  :mod:`shsas_core.evaluation.extract`) kept a small share of the image's ridge: its points over
+  the ridge points at or above τ (the same sheet without the test). The test holds a surface
+  against the mean of a window around it; where the image is too blurred for that (a narrow band:
+  the echo's mainlobe fills the window) or holds structured clutter (aliasing lobes of a large
+  box), it keeps little of anything, and the cloud misses much of the surface. Measure: that share.
 * ``loss_not_falling`` — the fit's data loss (the ToF term, a relative residual: 1.0 = predicting
   zeros) ended where it started. Measure: mean data loss over the last :data:`LOSS_WINDOW` of the
   iterations / mean over the first; limit 0.9, lowered when the per-iteration noise is too large
@@ -38,7 +44,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from shsas_core.data.volume import Volume
 
-WarningCode = Literal["collapsed", "box_filling", "loss_not_falling", "mesh_pieces", "mesh_area_ratio",
+WarningCode = Literal["collapsed", "box_filling", "surface_unclear", "loss_not_falling", "mesh_pieces", "mesh_area_ratio",
                       "mesh_normal_consistency"]
 
 #: ``collapsed`` below this relative spread ``(max - min) / max`` of |values|. Measured on the
@@ -56,6 +62,17 @@ COLLAPSE_SPREAD_LIMIT = 0.01
 #: voxels above it (Otsu splits a unimodal histogram near its middle: 45-52 % measured for
 #: under-trained fields); 40 % separates the two.
 BOX_FILL_LIMIT = 0.40
+#: ``surface_unclear`` below this share of the ridge at or above τ kept by the surface test. Measured
+#: (benchmarks/bench_variants.py and the fidelity suite's anisotropic fits, 2026-11-30): 0.52-1.46
+#: on every backprojection and neural volume of the nine scenes and of the demo's survey with long
+#: records, another sample rate or 5 dB (the test's candidates start at half of τ, so it can keep
+#: more than the ridge at τ); 0.062 on the 5 kHz band (c/2B 34 mm) and 0.066 on a box 20 cm taller
+#: than the object, the two surveys whose clouds lost most of the surface (surface F1 0.06 and a
+#: 3-piece mesh 20x the demo's Chamfer-L2; Reed's field in that box, an 11-piece foam: 0.083). On
+#: the real AirSAS bunny (27,000 pings): backprojection 0.073, whose default mesh covers a third
+#: of the surface in 4 pieces, Reed 0.387 and SH-SAS 0.535, one piece each. 0.2 lies between, a
+#: factor of 1.9 from the lowest good result.
+SURFACE_KEPT_LIMIT = 0.2
 #: ``loss_not_falling`` when mean(last window) / mean(first window) of the data loss is at least
 #: this: a fit that took the residual down by less than 10 % did not learn the data (fits that
 #: learn something measured 0.24-0.79 after 150-1000 iterations, one that learns nothing 0.97).
@@ -153,15 +170,36 @@ def loss_limit(stderr: float) -> float:
     return max(0.0, min(LOSS_RATIO_LIMIT, 1.0 - LOSS_NOISE_SIGMAS * stderr))
 
 
-def volume_warnings(volume: Volume, tau: float) -> list[ResultWarning]:
+def surface_kept_share(volume: Volume, tau: float, points: int, resolution: float | None) -> float:
+    """``points`` (the ridge cloud's size) over the number of ridge points of ``volume`` at or
+    above ``tau``, found at the extraction's own smoothing (``resolution``: the survey's range
+    resolution, m, as :func:`~shsas_core.evaluation.extract.extract` takes it); inf when that
+    ridge is empty."""
+    from shsas_core.evaluation.extract import ExtractConfig, normalize, resolution_m
+    from shsas_core.evaluation.ridge import ridge
+
+    norm = normalize(volume)
+    grid = volume.grid
+    cfg = ExtractConfig()
+    spacing = float(np.min(grid.spacing))
+    sigma = cfg.smoothing * resolution_m(spacing, cfg, resolution) / spacing
+    full = len(ridge(norm, norm >= tau, np.asarray(grid.box_min), grid.spacing, sigma))
+    return points / full if full else math.inf
+
+
+def volume_warnings(volume: Volume, tau: float, ridge_points: int | None = None,
+                    resolution: float | None = None) -> list[ResultWarning]:
     """Check a method's volume and its extraction.
 
     Args:
         volume: the reconstructed volume (complex or real, ``grid.shape``).
         tau: the normalised iso level used for extraction.
+        ridge_points: the size of its ridge cloud (None: a threshold cloud, no surface test).
+        resolution: the survey's range resolution ``c / 2B``, m, the ridge's scale (None: the
+            extraction's default in voxels).
     Returns:
         ``collapsed`` or ``box_filling`` warnings (at most one: the cloud of a collapsed volume
-        is rounding noise, so its size says nothing more).
+        is rounding noise, so its size says nothing more), else ``surface_unclear`` or none.
     """
     spread = relative_spread(volume)
     if spread < COLLAPSE_SPREAD_LIMIT:
@@ -176,6 +214,17 @@ def volume_warnings(volume: Volume, tau: float) -> list[ResultWarning]:
             code="box_filling", measure=share, limit=BOX_FILL_LIMIT,
             message=f"the extracted cloud fills the scene box ({n} of {volume.grid.num_voxels} "
                     f"voxels at or above τ = {tau:.3f}): a fog, not a surface")]
+    if ridge_points is not None:
+        kept = surface_kept_share(volume, tau, ridge_points, resolution)
+        if kept < SURFACE_KEPT_LIMIT:
+            res = "" if resolution is None else f" (range resolution {1e3 * resolution:.0f} mm)"
+            return [ResultWarning(
+                code="surface_unclear", measure=kept, limit=SURFACE_KEPT_LIMIT,
+                message=f"the surface test kept {ridge_points} points, {kept:.0%} of the image's ridge at "
+                        f"or above τ: the image is too blurred{res} or holds structured clutter "
+                        "(sidelobes, aliasing lobes) for its surface to stand out, and the cloud may miss "
+                        "much of it; a scene box closer to the object leaves such lobes out, and "
+                        "--surface threshold keeps every voxel at or above τ instead")]
     return []
 
 

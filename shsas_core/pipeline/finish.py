@@ -110,13 +110,21 @@ def finish(where: MethodOutputs, result: MethodResult, t0: float) -> tuple[Metho
                        threshold=tau, points=len(cloud), faces=len(mesh_.faces),
                        seconds=time.perf_counter() - t0, metrics=metrics, signal_errors=result.signal_errors,
                        loss_curve=result.loss_curve, artifacts=names, origin_offset=glb["origin_offset"],
-                       warnings=result_warnings(vol, tau, metrics) + list(result.warnings))
+                       warnings=result_warnings(vol, tau, metrics, ridge_cloud_size(spec, len(cloud)), where.resolution)
+                       + list(result.warnings))
     where.cache.mark_done(rep, where.extract_key)
     where.progress(1.0, where.method, {})
     return rep, mesh_
 
 
-def result_warnings(vol: Volume, tau: float, metrics: dict[str, float | None]) -> list[ResultWarning]:
-    """The volume's checks; the mesh's only when the volume passed (a collapsed or fog-filled
-    volume's mesh says nothing more)."""
-    return volume_warnings(vol, tau) or mesh_warnings(metrics)
+def ridge_cloud_size(spec: ReconstructionSpec, points: int) -> int | None:
+    """A cloud's size when the spec extracts the ridge (whose surface test the checks judge), else None."""
+    return points if spec.surface == "ridge" else None
+
+
+def result_warnings(vol: Volume, tau: float, metrics: dict[str, float | None], ridge_points: int | None = None,
+                    resolution: float | None = None) -> list[ResultWarning]:
+    """The volume's checks (with its ridge cloud's size, when it has one, at the survey's range
+    ``resolution``, m); the mesh's only when the volume passed (a collapsed or fog-filled volume's
+    mesh says nothing more)."""
+    return volume_warnings(vol, tau, ridge_points, resolution) or mesh_warnings(metrics)

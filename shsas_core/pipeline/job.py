@@ -58,6 +58,7 @@ from shsas_core.pipeline.finish import (
     MethodOutputs,
     finish,
     result_warnings,
+    ridge_cloud_size,
 )
 from shsas_core.pipeline.image_cache import ImageCache
 from shsas_core.pipeline.job_cache import JobCache, MethodCache
@@ -244,7 +245,9 @@ def _run_method(ctx: MethodContext, cache: MethodCache, gt: GroundTruth | None, 
             import trimesh
 
             mesh_ = trimesh.load(out / names["mesh_ply"], process=False, force="mesh")
-            rep = rep.model_copy(update={"warnings": result_warnings(vol, rep.threshold, rep.metrics) + kept})
+            checks = result_warnings(vol, rep.threshold, rep.metrics, ridge_cloud_size(ctx.spec, rep.points),
+                                     where.resolution)
+            rep = rep.model_copy(update={"warnings": checks + kept})
             progress(1.0, method, {"cached": 1.0})
             return MethodOutput(rep, vol, mesh_, fit)
         # reconstruction done, extraction settings (or code) changed: extract again, no refit

@@ -10,14 +10,16 @@ from shsas_core.evaluation.diagnostics import (
     LOSS_EXPLAINED,
     LOSS_MIN_ITERS,
     LOSS_RATIO_LIMIT,
+    SURFACE_KEPT_LIMIT,
     ResultWarning,
     fit_warnings,
     loss_limit,
     loss_ratio,
     loss_windows,
+    surface_kept_share,
     volume_warnings,
 )
-from shsas_core.evaluation.extract import extract
+from shsas_core.evaluation.extract import choose_threshold, extract
 
 #: The built-in sphere's scene box (r = 8 cm sphere on z = 0, 2 cm margin), 32³ voxels.
 GRID = Grid((-0.1, -0.1, -0.02), (0.1, 0.1, 0.18), (32, 32, 32))
@@ -93,6 +95,48 @@ def test_box_filling_counts_the_voxels_at_or_above_tau() -> None:
         assert [w.code for w in found] == (["box_filling"] if share >= BOX_FILL_LIMIT else [])
         if found:
             assert found[0].measure == pytest.approx(share)
+
+
+#: A finer grid than GRID, so that sheets 2 cm apart survive the ridge's smoothing.
+FINE = Grid((-0.1, -0.1, -0.02), (0.1, 0.1, 0.18), (64, 64, 64))
+#: The survey's range resolution the extraction smooths at, m (the default band's c / 2B).
+RESOLUTION = 0.0086
+
+
+def sheets(clutter: float) -> Volume:
+    """A bright sheet at x = 0 among parallel sheets of brightness ``clutter`` every 2 cm (the
+    lobes of an undersampled aperture): a clutter sheet is about twice the mean of its window,
+    below the surface test's contrast of 2.5, and at 0.3 above Otsu's level."""
+    x = FINE.points()[:, 0].reshape(FINE.shape)
+    stripes = np.exp(-0.5 * ((np.mod(x + 0.01, 0.02) - 0.01) / 0.004) ** 2)
+    bright = np.exp(-0.5 * (x / 0.002) ** 2)
+    values = np.maximum(bright, clutter * stripes) + 0.01 * np.random.default_rng(0).random(FINE.shape)
+    return Volume(FINE, values.astype(np.float32))
+
+
+def test_a_surface_test_that_keeps_little_of_the_ridge_is_reported() -> None:
+    vol = sheets(0.3)
+    tau, cloud, _ = extract(vol, resolution=RESOLUTION)
+    kept = surface_kept_share(vol, tau, len(cloud), RESOLUTION)
+    assert kept < SURFACE_KEPT_LIMIT
+    found = volume_warnings(vol, tau, len(cloud), RESOLUTION)
+    assert [w.code for w in found] == ["surface_unclear"]
+    assert found[0].measure == pytest.approx(kept)
+    assert str(len(cloud)) in found[0].message and "9 mm" in found[0].message
+
+
+@pytest.mark.parametrize("clutter", [0.0, 0.2])
+def test_a_clear_sheet_is_not_reported(clutter: float) -> None:
+    """Without clutter, or with clutter below τ (which the ridge at τ does not hold either)."""
+    vol = sheets(clutter)
+    tau, cloud, _ = extract(vol, resolution=RESOLUTION)
+    assert surface_kept_share(vol, tau, len(cloud), RESOLUTION) >= SURFACE_KEPT_LIMIT
+    assert volume_warnings(vol, tau, len(cloud), RESOLUTION) == []
+
+
+def test_a_threshold_cloud_has_no_surface_test_to_judge() -> None:
+    vol = sheets(0.3)
+    assert volume_warnings(vol, choose_threshold(vol), None, RESOLUTION) == []
 
 
 def test_a_falling_loss_raises_nothing() -> None:
