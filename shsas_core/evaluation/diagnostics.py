@@ -175,14 +175,12 @@ def surface_kept_share(volume: Volume, tau: float, points: int, resolution: floa
     above ``tau``, found at the extraction's own smoothing (``resolution``: the survey's range
     resolution, m, as :func:`~shsas_core.evaluation.extract.extract` takes it); inf when that
     ridge is empty."""
-    from shsas_core.evaluation.extract import ExtractConfig, normalize, resolution_m
+    from shsas_core.evaluation.extract import ExtractConfig, normalize, ridge_sigma
     from shsas_core.evaluation.ridge import ridge
 
     norm = normalize(volume)
     grid = volume.grid
-    cfg = ExtractConfig()
-    spacing = float(np.min(grid.spacing))
-    sigma = cfg.smoothing * resolution_m(spacing, cfg, resolution) / spacing
+    sigma = ridge_sigma(grid.spacing, ExtractConfig(), resolution)
     full = len(ridge(norm, norm >= tau, np.asarray(grid.box_min), grid.spacing, sigma))
     return points / full if full else math.inf
 

@@ -286,6 +286,14 @@ def resolution_m(spacing: float, config: ExtractConfig, resolution: float | None
     return config.resolution_voxels * float(spacing)
 
 
+def ridge_sigma(grid_spacing: np.ndarray, config: ExtractConfig, resolution: float | None) -> float:
+    """The ridge's Gaussian smoothing in voxels of the grid's finest ``grid_spacing`` (3,) m:
+    ``config.smoothing`` range resolutions (:func:`resolution_m`), a share of the point-spread
+    function's width, not of the voxel, so a finer grid over the same image finds the same ridge."""
+    spacing = float(np.min(grid_spacing))
+    return config.smoothing * (resolution_m(spacing, config, resolution) / spacing)
+
+
 def without_fog(r: Ridge, norm: np.ndarray, tau: float, fog_share: float) -> Ridge:
     """The ridge ``r`` of the normalised magnitude ``norm`` (X, Y, Z) without a fog's faint ridges
     (module doc, step 2, a candidate): unchanged unless more than ``fog_share`` of its points lie
@@ -329,10 +337,8 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
     norm = normalize(volume)
     grid = volume.grid
     res = resolution_m(float(np.min(grid.spacing)), cfg, resolution)
-    # the smoothing is a share of the point-spread function's width, not of the voxel: a finer
-    # grid over the same image must find the same ridge
-    voxels = res / float(np.min(grid.spacing))
-    sigma, sigma_n = cfg.smoothing * voxels, cfg.normal_smoothing * voxels
+    sigma = ridge_sigma(grid.spacing, cfg, resolution)
+    sigma_n = cfg.normal_smoothing * (res / float(np.min(grid.spacing)))
     estimated = volume.magnitude() > 0
     contrast = local_contrast(norm, grid.spacing, cfg.background_window,
                               estimated if cfg.background == "estimated" else None)
