@@ -17,6 +17,7 @@ Methods:
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import numpy as np
@@ -239,7 +240,24 @@ def deconvolve(
     raise ShsasError(f"deconvolution: unknown method '{config.method}' (use wiener, neural or none)")
 
 
-def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width: int = 8) -> np.ndarray | None:
+#: The point-spread kernel's half width in units of the pulse's resolution time 1/B: the
+#: Taylor-tapered Wiener kernel's mainlobe ends at 1.6/B whatever the sample rate and band (the
+#: kernel within ±1.6/B holds 99.95 % of its energy at 100 kHz and 250 kHz for a 20 kHz band,
+#: and for a 5 kHz band; 8 samples at the default 100 kHz and 20 kHz).
+PSF_HALF_WIDTH = 1.6
+
+
+def psf_half_width(survey: Survey) -> int:
+    """The kernel's half width in samples: :data:`PSF_HALF_WIDTH` x ``fs / B``, rounded up.
+
+    A width counted in samples would cut the mainlobe wherever samples are denser or the band
+    narrower than the default's (at 250 kHz, 8 samples end at 0.67 of the peak)."""
+    m = survey.meta
+    return max(1, math.ceil(round(PSF_HALF_WIDTH * m.fs / m.pulse.bandwidth, 6)))
+
+
+def point_spread(survey: Survey, config: DeconvConfig | None = None,
+                 half_width: int | None = None) -> np.ndarray | None:
     """The deconvolved signal of an ideal point echo: what :func:`deconvolve` makes of a unit
     reflector at a whole-sample delay, as a kernel on the sample grid.
 
@@ -250,7 +268,8 @@ def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width:
 
     Args:
         survey: pulse, sample rate and signal kind. config: the deconvolution used on the data.
-        half_width: ``h``; the kernel has ``2h + 1`` taps (lags -h..h samples).
+        half_width: ``h``; the kernel has ``2h + 1`` taps (lags -h..h samples); None: the
+            mainlobe's, :func:`psf_half_width`.
     Returns:
         (2h + 1,) complex128 with unit value at lag 0 (index h), or None for ``method="none"``
         (the raw echo is a whole chirp, not a compact kernel) and for ``meta.pulse_deconvolved``
@@ -259,6 +278,8 @@ def point_spread(survey: Survey, config: DeconvConfig | None = None, half_width:
     cfg = config or DeconvConfig()
     if cfg.method == "none" or survey.meta.pulse_deconvolved:
         return None  # pre-deconvolved data: their kernel is unknown, the ideal impulse is assumed
+    if half_width is None:
+        half_width = psf_half_width(survey)
     rep = replica_in_frame(survey)
     # a record as long as the survey's, so the FFT filters are sampled as they are on the data
     n = max(survey.num_samples, rep.size + 4 * half_width + 1)
