@@ -93,13 +93,8 @@ def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any, int]:
                 field.set_active_levels(coarse_start_levels(fcfg.encoding))
             distill(field, vol, WarmStartConfig(seed=spec.seed), progress=sub_progress(progress, 0.15, 0.25),
                     should_stop=ctx.should_stop, stage=f"warm start:{ctx.name}", occupancy=occupancy)
-    psf = None
-    if spec.forward == "psf":
-        from shsas_core.signal.deconv import point_spread
-        from shsas_core.signal.sources import deconv_config
-
-        psf = point_spread(survey, deconv_config(spec))
-    window = normal_window(spec, psf)
+    psf = fit_kernel(spec, survey)
+    window = normal_window(spec, psf, survey)
     result = fit(field, survey, ctx.signals, train_config(spec, window), progress=fit_progress,
                  should_stop=ctx.should_stop, checkpoint_dir=ckpt, ping_indices=ctx.train_idx,
                  stage=f"fit:{ctx.name}", psf=psf, occupancy=occupancy)
@@ -107,22 +102,47 @@ def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any, int]:
     return within(field, occupancy), result, window
 
 
-def normal_window(spec: ReconstructionSpec, psf: Any) -> int:
-    """The Lambertian normal's window a fit uses: the spec's where the trainer renders whole
-    range windows (a point-spread kernel ``psf``), 1 under the impulse model (``psf`` None).
+def fit_kernel(spec: ReconstructionSpec, survey: Survey) -> np.ndarray | None:
+    """The point-spread kernel a fit renders through (``forward = "psf"``), else None."""
+    if spec.forward != "psf":
+        return None
+    from shsas_core.signal.deconv import point_spread
+    from shsas_core.signal.sources import deconv_config
 
-    The impulse model's bins are drawn apart along each ray, so a sum of gradients over several
-    of them is no finite difference. It is also what ``forward = "psf"`` falls back to on
-    pre-deconvolved pings (a real AirSAS folder), which have no kernel."""
-    return spec.normal_window if psf is not None else 1
+    return point_spread(survey, deconv_config(spec))
+
+
+def normal_window(spec: ReconstructionSpec, psf: Any, survey: Survey) -> int:
+    """The Lambertian normal's window a fit uses, in samples: where the trainer renders whole
+    range windows (a point-spread kernel ``psf``) the spec's, or by default the whole samples in
+    :data:`~shsas_core.spec.options.NORMAL_WINDOW_RESOLUTIONS` range resolutions of ``survey``
+    (``fs / B`` per resolution); 1 under the impulse model (``psf`` None).
+
+    The window is a length: counted in samples, it shrank to 0.4 of a range resolution at 250
+    kHz, where it no longer lit the whole ridge. The impulse model's bins are drawn apart along
+    each ray, so a sum of gradients over several of them is no finite difference. It is also
+    what ``forward = "psf"`` falls back to on pre-deconvolved pings (a real AirSAS folder),
+    which have no kernel."""
+    from shsas_core.spec.options import NORMAL_WINDOW_RESOLUTIONS
+
+    if psf is None:
+        return 1
+    if spec.normal_window is not None:
+        return spec.normal_window
+    m = survey.meta
+    return max(1, math.floor(round(NORMAL_WINDOW_RESOLUTIONS * m.fs / m.pulse.bandwidth, 6)))
 
 
 def train_config(spec: ReconstructionSpec, window: int | None = None) -> Any:
-    """The trainer's config from the job spec (``window``: the normal window, if not the spec's:
-    :func:`normal_window`). Every key is a TrainConfig field: a name that is not (a renamed
-    field, say) fails here instead of being dropped."""
+    """The trainer's config from the job spec (``window``: the normal window, :func:`normal_window`;
+    None: the spec's, or where the spec leaves it to the survey the renderer's default, the
+    default survey's). Every key is a TrainConfig field: a name that is not (a renamed field,
+    say) fails here instead of being dropped."""
     from shsas_core.neural.render import RenderConfig
     from shsas_core.neural.train import LossWeights, TrainConfig
+
+    if window is None:
+        window = spec.normal_window if spec.normal_window is not None else RenderConfig().normal_window
 
     return TrainConfig(
         iters=spec.iters, seed=spec.seed, num_bins=spec.num_bins, num_rays=spec.num_rays, lr=spec.lr,
@@ -130,7 +150,7 @@ def train_config(spec: ReconstructionSpec, window: int | None = None) -> Any:
         target=spec.target, pings_per_batch=spec.pings_per_batch,
         device=spec.device, weights=LossWeights(sparsity=spec.sparsity, angular=spec.angular_prior, tv_density=spec.tv_density,
                             tv_scatter=spec.tv_scatter, tv_phase=spec.tv_phase),
-        render=RenderConfig(normal_window=spec.normal_window if window is None else window),
+        render=RenderConfig(normal_window=window),
         # about ten checkpoints per fit, so a re-delivered job loses at most a tenth of it
         checkpoint_every=max(10, min(500, spec.iters // 10)))
 

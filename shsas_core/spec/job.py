@@ -28,7 +28,6 @@ from shsas_core.spec.options import (
     LR_FINAL_HELP,
     MESHER,
     MESHER_HELP,
-    NORMAL_WINDOW,
     NORMAL_WINDOW_HELP,
     NUM_BINS,
     NUM_RAYS,
@@ -129,7 +128,7 @@ class ReconstructionSpec(BaseModel):
     tv_density: TVWeight = Field(0.0, description=TV_DENSITY_HELP)
     tv_scatter: TVWeight = Field(0.0, description=TV_SCATTER_HELP)
     tv_phase: TVWeight = Field(0.0, description=TV_PHASE_HELP)
-    normal_window: NormalWindow = Field(NORMAL_WINDOW, description=NORMAL_WINDOW_HELP)
+    normal_window: NormalWindow | None = Field(None, description=NORMAL_WINDOW_HELP)
     lr_final: FinalLearningRate | None = Field(None, description=LR_FINAL_HELP)
     average_last: AverageLast | None = Field(AVERAGE_LAST, description=AVERAGE_LAST_HELP)
     coarse_to_fine: CoarseToFine | None = Field(COARSE_TO_FINE, description=COARSE_TO_FINE_HELP)

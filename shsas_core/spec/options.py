@@ -46,14 +46,20 @@ AVERAGE_LAST_HELP = ("the neural field returned is the uniform average of its we
 
 #: Samples along each TX ray whose field gradients make the Lambertian term's normal (docs/neural.md,
 #: "The Lambertian term and its normal").
-NormalWindow = Annotated[int, Field(ge=1, le=16)]
-#: 5 since the surface protocol: measured against 1 by the fidelity benchmark (docs/decisions/
-#: lambertian-normal-window.md, "Revision"); the paper's 1 is in ``--preset paper``.
+NormalWindow = Annotated[int, Field(ge=1, le=64)]
+#: The window is a length along the ray, one range resolution c/2B: the whole samples in it,
+#: ``fs / B`` (docs/decisions/lambertian-normal-window.md; measured against 1 by the fidelity
+#: benchmark, and as a length against a count of samples at 250 kHz); the paper's 1 sample is in
+#: ``--preset paper``.
+NORMAL_WINDOW_RESOLUTIONS = 1.0
+#: The renderer's window where no survey is given: one range resolution of the default survey
+#: (100 kHz, 10-30 kHz: 5 samples).
 NORMAL_WINDOW = 5
 NORMAL_WINDOW_HELP = ("the Lambertian term's normal at a sample is -∇|σ_DC| summed over this many consecutive "
                       "samples along its TX ray, ending at the sample (bins of one range window: under the impulse "
                       "forward model, chosen or on pre-deconvolved pings, the fit uses 1); 1: the sample's own "
-                      "gradient (the paper). A thin shell's own gradient "
+                      "gradient (the paper); None: the samples in one range resolution c/2B of the survey "
+                      "(fs / B: 5 at 100 kHz and 10-30 kHz, 12 at 250 kHz). A thin shell's own gradient "
                       "vanishes at its ridge and points back at the sonar past it, so only the near flank "
                       "is lit and the fit builds a double sheet; a window lights the ridge and gives one "
                       "sheet (docs/neural.md)")

@@ -27,7 +27,7 @@ SHARED = {
     "num_bins": (TrainConfig, "num_bins"), "num_rays": (TrainConfig, "num_rays"),
     "pings_per_batch": (TrainConfig, "pings_per_batch"), "seed": (TrainConfig, "seed"),
     "device": (TrainConfig, "device"), "target": (TrainConfig, "target"),
-    "normal_window": (RenderConfig, "normal_window"), "coarse_to_fine": (TrainConfig, "coarse_to_fine"),
+    "coarse_to_fine": (TrainConfig, "coarse_to_fine"),
     "occupancy_floor": (OccupancyConfig, "floor_factor"),
 }
 #: LossWeights.sparsity is a plain weight (>= 0, tests use 1000); the spec caps it at 100 for users.
@@ -69,6 +69,7 @@ def test_train_config_passes_every_spec_option():
                               coarse_to_fine=0.25, angular_prior=0.7, tv_density=0.1, tv_scatter=0.2,
                               tv_phase=0.3)
     cfg = train_config(spec)
+    assert cfg.render_config().normal_window == spec.normal_window
     for field, (model, name) in SHARED.items():
         if model is OccupancyConfig:  # handed to the occupancy grid, not to the trainer
             continue
@@ -91,19 +92,40 @@ def test_the_lambertian_normal_is_windowed_by_default_and_the_papers_own_in_its_
     assert train_config(ReconstructionSpec(**PAPER_SETTINGS)).render_config().normal_window == 1
 
 
+def _meta_survey(fs: float, band: tuple[float, float]):
+    from types import SimpleNamespace
+
+    from shsas_core.data.survey import PulseParams, SurveyMeta
+
+    return SimpleNamespace(meta=SurveyMeta(fs=fs, pulse=PulseParams(f_start=band[0], f_stop=band[1])))
+
+
+@pytest.mark.parametrize("fs, band, samples", [(100e3, (10e3, 30e3), 5), (250e3, (10e3, 30e3), 12),
+                                               (100e3, (17.5e3, 22.5e3), 20), (64e3, (10e3, 30e3), 3)])
+def test_the_default_normal_window_is_one_range_resolution_of_the_survey(fs, band, samples):
+    # a length along the ray, not a count of samples: the whole samples in c/2B are fs / B (a
+    # count of 5 was 0.4 of a resolution at 250 kHz); the renderer's own default is the default
+    # survey's; a window the spec gives is kept as given
+    import torch
+
+    from shsas_core.methods.neural import normal_window
+    from shsas_core.spec.options import NORMAL_WINDOW
+
+    survey = _meta_survey(fs, band)
+    assert normal_window(ReconstructionSpec(), torch.ones(5), survey) == samples
+    assert normal_window(ReconstructionSpec(normal_window=3), torch.ones(5), survey) == 3
+    assert normal_window(ReconstructionSpec(), torch.ones(5), _meta_survey(100e3, (10e3, 30e3))) == NORMAL_WINDOW
+
+
 def test_the_impulse_forward_model_fits_with_the_samples_own_normal():
     # its bins are drawn apart along each ray: a window of them is no finite difference, and the
     # pre-deconvolved pings of a real folder get that model under forward = "psf" too
-    import torch
-
     from shsas_core.methods.neural import normal_window, train_config
-    from shsas_core.spec.options import NORMAL_WINDOW
 
-    spec = ReconstructionSpec()
-    assert normal_window(spec, torch.ones(5)) == NORMAL_WINDOW
-    assert normal_window(spec, None) == 1
-    assert train_config(spec, normal_window(spec, None)).render_config().normal_window == 1
-    assert normal_window(ReconstructionSpec(normal_window=3), torch.ones(5)) == 3
+    spec, survey = ReconstructionSpec(), _meta_survey(250e3, (10e3, 30e3))
+    assert normal_window(spec, None, survey) == 1
+    assert train_config(spec, normal_window(spec, None, survey)).render_config().normal_window == 1
+    assert normal_window(ReconstructionSpec(normal_window=3), None, survey) == 1
 
 
 def test_spec_encoding_names_the_encoding_presets():
