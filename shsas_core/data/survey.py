@@ -124,6 +124,13 @@ class SurveyMeta(_Strict):
         """``c / 2B``: the two-way range resolution of the pulse band, m."""
         return self.sound_speed / (2 * self.pulse.bandwidth)
 
+    @property
+    def resolution_samples(self) -> float:
+        """``fs / B``: the samples in one range resolution (one resolution time ``1 / B``), the
+        unit the fit's lengths along a ping are given in, so they mean the same at any sample
+        rate and band."""
+        return self.fs / self.pulse.bandwidth
+
 
 #: Meta fields that are objects: their fields may also be given flat, as dotted keys
 #: (``"pulse.f_start": 20000``), the way docs/formats.md's meta table names them.

@@ -116,7 +116,7 @@ def normal_window(spec: ReconstructionSpec, psf: Any, survey: Survey) -> int:
     """The Lambertian normal's window a fit uses, in samples: where the trainer renders whole
     range windows (a point-spread kernel ``psf``) the spec's, or by default the whole samples in
     :data:`~shsas_core.spec.options.NORMAL_WINDOW_RESOLUTIONS` range resolutions of ``survey``
-    (``fs / B`` per resolution); 1 under the impulse model (``psf`` None).
+    (``meta.resolution_samples``, ``fs / B``); 1 under the impulse model (``psf`` None).
 
     The window is a length: counted in samples, it shrank to 0.4 of a range resolution at 250
     kHz, where it no longer lit the whole ridge. The impulse model's bins are drawn apart along
@@ -129,8 +129,7 @@ def normal_window(spec: ReconstructionSpec, psf: Any, survey: Survey) -> int:
         return 1
     if spec.normal_window is not None:
         return spec.normal_window
-    m = survey.meta
-    return max(1, math.floor(round(NORMAL_WINDOW_RESOLUTIONS * m.fs / m.pulse.bandwidth, 6)))
+    return max(1, math.floor(round(NORMAL_WINDOW_RESOLUTIONS * survey.meta.resolution_samples, 6)))
 
 
 def train_config(spec: ReconstructionSpec, window: int | None = None) -> Any:

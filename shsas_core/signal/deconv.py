@@ -248,12 +248,12 @@ PSF_HALF_WIDTH = 1.6
 
 
 def psf_half_width(survey: Survey) -> int:
-    """The kernel's half width in samples: :data:`PSF_HALF_WIDTH` x ``fs / B``, rounded up.
+    """The kernel's half width in samples: :data:`PSF_HALF_WIDTH` x ``fs / B``
+    (``meta.resolution_samples``), rounded up.
 
     A width counted in samples would cut the mainlobe wherever samples are denser or the band
     narrower than the default's (at 250 kHz, 8 samples end at 0.67 of the peak)."""
-    m = survey.meta
-    return max(1, math.ceil(round(PSF_HALF_WIDTH * m.fs / m.pulse.bandwidth, 6)))
+    return max(1, math.ceil(round(PSF_HALF_WIDTH * survey.meta.resolution_samples, 6)))
 
 
 def point_spread(survey: Survey, config: DeconvConfig | None = None,
