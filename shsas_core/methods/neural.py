@@ -116,20 +116,22 @@ def normal_window(spec: ReconstructionSpec, psf: Any, survey: Survey) -> int:
     """The Lambertian normal's window a fit uses, in samples: where the trainer renders whole
     range windows (a point-spread kernel ``psf``) the spec's, or by default the whole samples in
     :data:`~shsas_core.spec.options.NORMAL_WINDOW_RESOLUTIONS` range resolutions of ``survey``
-    (``meta.resolution_samples``, ``fs / B``); 1 under the impulse model (``psf`` None).
+    (``meta.resolution_samples``, ``fs / B``), at least ``NORMAL_WINDOW_MIN_SAMPLES``; 1 under
+    the impulse model (``psf`` None).
 
     The window is a length: counted in samples, it shrank to 0.4 of a range resolution at 250
     kHz, where it no longer lit the whole ridge. The impulse model's bins are drawn apart along
     each ray, so a sum of gradients over several of them is no finite difference. It is also
     what ``forward = "psf"`` falls back to on pre-deconvolved pings (a real AirSAS folder),
     which have no kernel."""
-    from shsas_core.spec.options import NORMAL_WINDOW_RESOLUTIONS
+    from shsas_core.spec.options import NORMAL_WINDOW_MIN_SAMPLES, NORMAL_WINDOW_RESOLUTIONS
 
     if psf is None:
         return 1
     if spec.normal_window is not None:
         return spec.normal_window
-    return max(1, math.floor(round(NORMAL_WINDOW_RESOLUTIONS * survey.meta.resolution_samples, 6)))
+    samples = math.floor(round(NORMAL_WINDOW_RESOLUTIONS * survey.meta.resolution_samples, 6))
+    return max(NORMAL_WINDOW_MIN_SAMPLES, samples)
 
 
 def train_config(spec: ReconstructionSpec, window: int | None = None) -> Any:

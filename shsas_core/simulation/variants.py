@@ -2,8 +2,9 @@
 
 Each variant changes one thing a reconstruction's defaults must not depend on, against the
 default survey (``reference``): records that start at transmit and run long, a scene box much
-larger and taller than the object, another sample rate, 5 dB SNR, and a narrow band (5 kHz
-around 20 kHz: a range resolution of 34 mm against the default band's 8.6 mm). The extraction
+larger and taller than the object, another sample rate, 5 dB SNR, a narrow band (5 kHz
+around 20 kHz: a range resolution of 34 mm against the default band's 8.6 mm) and a wide one
+(5-45 kHz: 4.3 mm, 2.5 samples a resolution at 100 kHz). The extraction
 test (``tests/core/evaluation/test_extract_variants.py``) and the variants benchmark
 (``benchmarks/bench_variants.py``) both simulate them from here.
 """
@@ -25,6 +26,7 @@ VARIANTS: dict[str, str] = {
     "sample_rate": "sampled at 250 kHz instead of 100 kHz",
     "snr_5db": "5 dB in-band SNR instead of 20 dB",
     "narrowband": "a 5 kHz chirp around 20 kHz (17.5-22.5 kHz) instead of 10-30 kHz",
+    "wideband": "a 40 kHz chirp (5-45 kHz) instead of 10-30 kHz",
 }
 
 #: The growth of the large box below and above the object's bounds, m (x, y, z).
@@ -54,4 +56,6 @@ def variant_overrides(name: str, bounds: np.ndarray) -> dict[str, Any]:
         return {"snr_db": 5.0}
     if name == "narrowband":
         return {"pulse": PulseParams(f_start=17.5e3, f_stop=22.5e3)}
+    if name == "wideband":
+        return {"pulse": PulseParams(f_start=5e3, f_stop=45e3)}
     raise ShsasError(f"survey variant: unknown name {name!r}; choose from {', '.join(VARIANTS)}")

@@ -27,6 +27,13 @@ def test_narrowband_keeps_the_centre_and_cuts_the_band_to_a_quarter() -> None:
     assert abs(pulse.f_stop - pulse.f_start) == pytest.approx(abs(default.f_stop - default.f_start) / 4)
 
 
+def test_wideband_doubles_the_band_below_nyquist() -> None:
+    pulse = variant_overrides("wideband", BOUNDS)["pulse"]
+    default = PulseParams()
+    assert abs(pulse.f_stop - pulse.f_start) == pytest.approx(2 * abs(default.f_stop - default.f_start))
+    assert 2 * max(pulse.f_start, pulse.f_stop) < SimulationConfig().fs
+
+
 def test_large_box_holds_the_object_with_room_above() -> None:
     box = variant_overrides("large_box", BOUNDS)["scene_box"]
     lo, hi = np.array(box.min), np.array(box.max)
@@ -37,4 +44,4 @@ def test_large_box_holds_the_object_with_room_above() -> None:
 def test_snr_variant_sets_the_snr_and_an_unknown_name_says_which_exist() -> None:
     assert variant_overrides("snr_5db", BOUNDS) == {"snr_db": 5.0}
     with pytest.raises(ShsasError, match="narrowband"):
-        variant_overrides("wideband", BOUNDS)
+        variant_overrides("ultrasound", BOUNDS)

@@ -101,11 +101,11 @@ def _meta_survey(fs: float, band: tuple[float, float]):
 
 
 @pytest.mark.parametrize("fs, band, samples", [(100e3, (10e3, 30e3), 5), (250e3, (10e3, 30e3), 12),
-                                               (100e3, (17.5e3, 22.5e3), 20), (64e3, (10e3, 30e3), 3)])
+                                               (100e3, (17.5e3, 22.5e3), 20), (100e3, (5e3, 45e3), 5)])
 def test_the_default_normal_window_is_one_range_resolution_of_the_survey(fs, band, samples):
     # a length along the ray, not a count of samples: the whole samples in c/2B are fs / B (a
-    # count of 5 was 0.4 of a resolution at 250 kHz); the renderer's own default is the default
-    # survey's; a window the spec gives is kept as given
+    # count of 5 was 0.4 of a resolution at 250 kHz), but never fewer than 5 (a 40 kHz band's
+    # 2.5); the renderer's own default is the default survey's; a window the spec gives is kept
     import torch
 
     from shsas_core.methods.neural import normal_window
