@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from shsas_core.common.progress import TqdmProgress, never_stop, sub_progress
     from shsas_core.data.volume import Grid
     from shsas_core.methods import MethodContext, reconstruct
-    from shsas_core.methods.neural import fit_kernel, normal_window, train_config
+    from shsas_core.methods.neural import train_config
     from shsas_core.outputs.export import write_volume_npy
     from shsas_core.pipeline.job import holdout_split, load_input
     from shsas_core.signal.sources import deconv_config, signals_for
@@ -80,8 +80,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {"method": args.method, "sh_degree": REGISTRY[args.method].sh_degree(spec.sh_degree),
             "signals": got.label, "survey": str(args.survey), "spec": spec.model_dump(mode="json"),
             "field_config": field.config.model_dump(mode="json"),
-            "train_config": train_config(spec, normal_window(spec, fit_kernel(spec, survey), survey)
-                                         ).model_dump(mode="json")}
+            "train_config": train_config(spec, record["normal_window"]).model_dump(mode="json")}
     with atomic_path(out / "field.pt") as tmp:
         torch.save({"state_dict": field.state_dict(), "amplitude": record.get("amplitude"), **meta}, tmp)
     (out / "loss_history.json").write_text(json.dumps({**record, **meta}, indent=1))

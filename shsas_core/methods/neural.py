@@ -55,7 +55,7 @@ def fit_field(ctx: MethodContext) -> MethodResult:
     fit_fig = SignalFit(times=ctx.survey.times()[fit_pings[show]] * 1e3, measured=ctx.signals[fit_pings[show]],
                         predicted=pred[show], pings=[int(i) for i in fit_pings[show]])
     return MethodResult(volume=vol, field=field, loss_curve=loss_curve, signal_errors=signal_errs,
-                        signal_fit=fit_fig, warnings=warns, record=result.to_json())
+                        signal_fit=fit_fig, warnings=warns, record={**result.to_json(), "normal_window": window})
 
 
 def _fit(ctx: MethodContext, progress: ProgressFn) -> tuple[Any, Any, int]:
