@@ -22,6 +22,7 @@ and pipeline artifacts; a re-run resumes finished fits. ``--record`` writes
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -64,8 +65,10 @@ def simulate_variant(name: str, mesh: str, out: Path) -> Any:
     return survey
 
 
-def measure(name: str, mesh: str, methods: list[str], out: Path) -> list[dict[str, Any]]:
-    """One row per method of the pipeline's default run on variant ``name``."""
+def measure(name: str, mesh: str, methods: list[str], out: Path,
+            overrides: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """One row per method of the pipeline's default run on variant ``name`` (the default spec but
+    for ``overrides``)."""
     from shsas_core.data.volume import DEFAULT_VOXEL_M
     from shsas_core.pipeline.job import run
 
@@ -74,7 +77,7 @@ def measure(name: str, mesh: str, methods: list[str], out: Path) -> list[dict[st
     rows = []
     for method in methods:
         t = time.perf_counter()
-        res = run(ReconstructionSpec(methods=[method], seed=0), survey, out / method)
+        res = run(ReconstructionSpec(**{"seed": 0, **(overrides or {}), "methods": [method]}), survey, out / method)
         m = res.metrics[method]
         points = m.get("pc_points")
         rows.append({"row": f"{name} / {LABELS.get(method, method)}", "variant": name, "method": method,
@@ -95,7 +98,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default=",".join(METHODS), help=f"comma list (default {','.join(METHODS)})")
     ap.add_argument("--out", default=str(records.ROOT / "benchmarks" / "out" / "variants"), help="artifacts folder")
     ap.add_argument("--record", action="store_true", help="write benchmarks/results/variants-<scene>.json")
+    ap.add_argument("--spec", default=None, metavar="JSON",
+                    help='override spec fields, e.g. \'{"sparsity": 0}\' (the record is named after them; '
+                    "--out should then be another folder: finished fits are resumed)")
     args = ap.parse_args(argv)
+    try:
+        overrides = json.loads(args.spec) if args.spec else {}
+        ReconstructionSpec(**overrides)
+    except (ValueError, TypeError) as exc:
+        ap.error(f"--spec: {exc}")
     names = [v for v in args.variants.split(",") if v]
     methods = [m for m in args.methods.split(",") if m]
     unknown = [v for v in names if v not in VARIANTS] + [m for m in methods if m not in METHODS]
@@ -106,18 +117,18 @@ def main(argv: list[str] | None = None) -> int:
     scene = Path(args.mesh).stem
     machine, load = records.machine(), records.load()
     t = time.perf_counter()
-    rows = [r for v in names for r in measure(v, args.mesh, methods, Path(args.out) / scene / v)]
+    rows = [r for v in names for r in measure(v, args.mesh, methods, Path(args.out) / scene / v, overrides)]
     wall = time.perf_counter() - t
     print("\n".join(scoreboard.table(COLUMNS, rows)))
     print(f"variants wall time {wall:.0f} s")
     if args.record:
         what = "; ".join(f"{v}: {VARIANTS[v]}" for v in names)
         record = records.make_record(
-            "variants", f"variants-{scene}",
+            "variants", f"variants-{scene}" + "".join(f"-{k.replace('_', '-')}-{v}" for k, v in overrides.items()),
             f"default spec on surveys unlike the simulator's defaults ({scene}, {DEMO_HEIGHTS} x {DEMO_ANGLES} pings)",
             "python " + " ".join(["benchmarks/bench_variants.py", *(argv if argv is not None else sys.argv[1:])]),
             COLUMNS, rows, machine_info=machine, load_info=load, scene=scene,
-            notes=f"Variants ({what}). cloud / surface voxels: the cloud's points over the true area / "
+            notes=f"spec overrides: {overrides or 'none'}. Variants ({what}). cloud / surface voxels: the cloud's points over the true area / "
                   f"(2.5 mm)². s: each method's pipeline time; the run took {wall:.0f} s wall.")
         print(f"record: {records.write_record(record)}")
     return 0

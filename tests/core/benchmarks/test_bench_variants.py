@@ -13,6 +13,8 @@ bench_variants = load_bench("bench_variants")
     (["--variants", "reference,ultrasound"], "ultrasound"),
     (["--methods", "backprojection,nerf"], "nerf"),
     (["--mesh", "/no/such/mesh.obj"], "/no/such/mesh.obj"),
+    (["--spec", '{"sparsity": -1}'], "sparsity"),
+    (["--spec", '{"sparsty": 0}'], "sparsty"),
 ])
 def test_bad_arguments_exit_with_the_name(argv: list[str], named: str, tmp_path, capsys) -> None:
     from shsas_core.simulation.variants import VARIANTS
