@@ -22,7 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "reconstruct", help="reconstruct a survey with backprojection, Reed et al. (L=0) and SH-SAS",
         description="Reconstruct a survey: pulse deconvolution, then each method (time-domain "
         "backprojection; the isotropic neural field of Reed et al., SH degree 0; SH-SAS with SH "
-        "degree L), extraction of a point cloud and a marching-cubes mesh, export (PLY, GLB, NPY), "
+        "degree L), extraction of the surface (its ridge points and a screened-Poisson mesh; --surface and --mesher "
+        "choose the paper's threshold cloud and marching cubes instead), export (PLY, GLB, NPY), "
         "metrics when the survey carries a ground-truth mesh, and report.json + report.html. "
         "Re-running with the same --out resumes: finished methods are skipped.",
         epilog="Outputs in DIR: {method}_volume.npy/.json, {method}_pointcloud.ply (vertex property "
