@@ -37,6 +37,14 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    meshes were foams at twice the true area). Ridge candidates must lie ``support_margin`` range
    resolutions inside the voxels of non-zero magnitude; a backprojection image, non-zero
    everywhere, is untouched (docs/decisions/estimate-edge-margin.md).
+   **Bright pieces** (``piece_level``, ``piece_reach``): what passes the contrast test apart
+   from the object, such as the grating lobes of a coarse angular sampling that a box wider
+   than the object keeps (their streaks lie 5-10 cm off it), is dimmer than the object: each
+   26-connected piece of ridge must hold a point at or above Otsu's level of the ridge's own
+   magnitudes (the split between its bright and its dim points), or come within
+   ``piece_reach`` range resolutions of a piece that does (a dim continuation of the object
+   across a gap in the ridge, like a sphere's underside lit only at grazing angles)
+   (docs/decisions/bright-pieces.md).
    **Fog** (``fog_share``; off by default): a candidate for a neural field's volume, measured
    and not adopted (docs/results.md, "A fog step for the neural ridge", with the old
    background). On sparse surveys the fit leaves faint sheets in empty space that passed the
@@ -128,6 +136,11 @@ class ExtractConfig(BaseModel):
     support_margin: float = Field(1.25, ge=0, le=5, description="ridge candidates lie at least this "
                                   "many range resolutions inside the voxels the volume estimates (non-zero "
                                   "magnitude: a neural field's occupancy mask); 0: off")
+    piece_level: float | None = Field(1.0, gt=0, le=1, description="each ridge piece holds a point at "
+                                      "this share of Otsu's level of the ridge's magnitudes or lies within "
+                                      "piece_reach of one that does (module doc, step 2); None: off")
+    piece_reach: float = Field(2.0, ge=0, le=10, description="how near a dim ridge piece must come to a "
+                               "bright one to stay, in range resolutions")
     fog_share: float | None = Field(None, ge=0, le=1, description="the fog step for a neural field's "
                                     "ridge (module doc, step 2): when more than this share of it lies below "
                                     "τ, those points go and each piece must reach Otsu's level of the ridge's "
@@ -356,6 +369,10 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         r = ridge(norm, norm >= tau, lo, grid.spacing, sigma)
     if cfg.fog_share is not None:
         r = without_fog(r, norm, tau, cfg.fog_share)
+    if cfg.piece_level is not None and len(r):
+        mags = norm[tuple(r.index.T)]
+        r = connected_to_strong(r, grid.shape, cfg.piece_level * otsu_threshold(mags), values=mags,
+                                reach=cfg.piece_reach * res)
     r = drop_small_pieces(r, grid.shape, cfg.min_piece)
     if sigma_n != sigma:
         r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, sigma_n))

@@ -336,12 +336,15 @@ def suppress_sidelobes(points: np.ndarray, normals: np.ndarray, strength: np.nda
 
 
 def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float,
-                        values: np.ndarray | None = None) -> Ridge:
+                        values: np.ndarray | None = None, reach: float = 0.0) -> Ridge:
     """Hysteresis: keep the ridge voxels whose 26-connected piece of ridge voxels holds at least
-    one voxel of value >= ``strong`` (Canny's rule: weak ridge continues a strong one or goes).
+    one voxel of value >= ``strong`` (Canny's rule: weak ridge continues a strong one or goes),
+    and, with ``reach`` > 0, the pieces with a point within ``reach`` m of such a piece's points
+    (a weak continuation across a gap the ridge test left).
 
     Args:
         values: (P,) the value each ridge voxel is judged by (None: ``r.values``).
+        reach: m, 0 for 26-connectivity alone.
     """
     if len(r) == 0:
         return r
@@ -349,4 +352,10 @@ def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float,
     lab, count = piece_labels(r, shape)
     good = np.zeros(count + 1, dtype=bool)
     good[lab[values >= strong]] = True
-    return r.subset(good[lab])
+    keep = good[lab]
+    if reach > 0 and keep.any() and not keep.all():
+        dist, _ = cKDTree(r.points[keep]).query(r.points[~keep], distance_upper_bound=reach)
+        near = np.zeros(count + 1, dtype=bool)
+        near[lab[~keep][dist <= reach]] = True
+        keep |= near[lab]
+    return r.subset(keep)

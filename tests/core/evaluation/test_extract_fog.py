@@ -107,8 +107,13 @@ def test_the_fog_step_is_off_by_default_and_on_with_a_share() -> None:
     vol = Volume(Grid(tuple(LO), tuple(LO + N * H), (N, N, N)), v)
     far = lambda c: np.abs(np.linalg.norm(c.points - C, axis=1) - R0) > 0.015  # noqa: E731
     tau = 0.15
-    as_image = ridge_cloud(vol, tau, ExtractConfig())
-    as_field = ridge_cloud(vol, tau, ExtractConfig(fog_share=0.05))
+    # the fog step alone (the bright-pieces step, on by default, off)
+    as_image = ridge_cloud(vol, tau, ExtractConfig(piece_level=None))
+    as_field = ridge_cloud(vol, tau, ExtractConfig(fog_share=0.05, piece_level=None))
     assert far(as_image).sum() > 0.05 * len(as_image)  # the sheets pass the contrast test
     assert far(as_field).sum() == 0
     assert len(as_field) > 0.9 * (~far(as_image)).sum()
+    # the default's bright-pieces step drops the sheets too and keeps the dim flank
+    default = ridge_cloud(vol, tau, ExtractConfig())
+    assert far(default).sum() == 0
+    assert len(default) > 0.9 * (~far(as_image)).sum()

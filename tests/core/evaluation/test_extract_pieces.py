@@ -1,0 +1,99 @@
+"""The bright-pieces step of the ridge extraction (``ExtractConfig.piece_level``, ``piece_reach``):
+a dim piece of ridge far from the object goes, a dim piece within reach of it stays, and with the
+step off both stay.
+
+Reference: a bright Gaussian shell plus two dim flat patches, one 13 mm outside the shell (within
+two range resolutions of 8.6 mm) and one in the box's corner (5 cm and more from the shell);
+which ridge point belongs to which is known by construction. The reach itself is checked against
+a brute-force loop over the pieces' pairwise distances.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from shsas_core.data.survey import SceneBox
+from shsas_core.data.volume import Grid, Volume
+from shsas_core.evaluation.extract import ExtractConfig, ridge_cloud
+from shsas_core.evaluation.ridge import Ridge, connected_to_strong, piece_labels
+
+H = 0.0025
+N = 64
+LO = np.full(3, -N * H / 2)
+R0 = 0.035
+RES = 0.0086  # the survey's range resolution c/2B, m
+C = np.array([0.001, -0.002, 0.0013])
+#: The patches: (centre x, y, z of the sheet, peak); the first 13 mm outside the shell's top.
+NEAR = (C[0], C[1], C[2] + R0 + 0.013, 0.5)
+FAR = (-0.06, -0.06, -0.06, 0.3)
+
+
+def centres() -> np.ndarray:
+    ax = LO[0] + (np.arange(N) + 0.5) * H
+    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)
+
+
+def scene() -> np.ndarray:
+    """The shell (peak 1) and the two patches (flat 2 cm squares across z, peaks 0.5 and 0.3)."""
+    x = centres()
+    r = np.linalg.norm(x - C, axis=-1)
+    v = np.exp(-0.5 * ((r - R0) / 0.004) ** 2)
+    for cx, cy, cz, peak in (NEAR, FAR):
+        inside = (np.abs(x[..., 0] - cx) < 0.01) & (np.abs(x[..., 1] - cy) < 0.01)
+        v = np.maximum(v, np.where(inside, peak * np.exp(-0.5 * ((x[..., 2] - cz) / 0.003) ** 2), 0.0))
+    return (v + 1e-6).astype(np.float32)  # non-zero everywhere: the whole box is estimated
+
+
+def cloud(config: ExtractConfig):
+    box = SceneBox(min=tuple(LO), max=tuple(LO + N * H))
+    return ridge_cloud(Volume(Grid.over(box, N), scene()), 0.2, config, resolution=RES)
+
+
+def near_patch(points: np.ndarray, patch: tuple[float, float, float, float]) -> np.ndarray:
+    cx, cy, cz, _ = patch
+    return (np.abs(points[:, 0] - cx) < 0.012) & (np.abs(points[:, 1] - cy) < 0.012) & (np.abs(points[:, 2] - cz) < 0.005)
+
+
+def test_the_far_dim_piece_goes_and_the_near_one_stays() -> None:
+    on = cloud(ExtractConfig()).points
+    off = cloud(ExtractConfig(piece_level=None)).points
+    # without the step both patches pass the contrast test (the box around them is empty)
+    assert near_patch(off, FAR).sum() > 20
+    assert near_patch(off, NEAR).sum() > 20
+    assert near_patch(on, FAR).sum() == 0
+    assert near_patch(on, NEAR).sum() == near_patch(off, NEAR).sum()
+    shell = np.abs(np.linalg.norm(on - C, axis=1) - R0) < 0.003
+    assert shell.sum() == (np.abs(np.linalg.norm(off - C, axis=1) - R0) < 0.003).sum()
+    # no reach: the near patch, dim and apart from the shell's ridge, goes too
+    assert near_patch(cloud(ExtractConfig(piece_reach=0)).points, NEAR).sum() == 0
+
+
+def reach_by_loop(r: Ridge, shape: tuple[int, int, int], strong: float, reach: float) -> np.ndarray:
+    lab, count = piece_labels(r, shape)
+    bright = {int(p) for p in np.unique(lab[r.values >= strong])}
+    keep = np.zeros(len(r), dtype=bool)
+    for p in range(1, count + 1):
+        mine = lab == p
+        if p in bright:
+            keep |= mine
+            continue
+        for q in bright:
+            d = np.linalg.norm(r.points[mine][:, None, :] - r.points[lab == q][None, :, :], axis=-1)
+            if d.min() <= reach:
+                keep |= mine
+                break
+    return keep
+
+
+def test_reach_matches_a_loop_over_pieces() -> None:
+    rng = np.random.default_rng(3)
+    shape = (40, 40, 40)
+    index = np.unique(rng.integers(0, 40, size=(300, 3)), axis=0)
+    points = LO + (index + rng.uniform(0, 1, index.shape)) * H
+    values = rng.uniform(0, 1, len(index)).astype(np.float32)
+    r = Ridge(index, points, np.tile([0.0, 0.0, 1.0], (len(index), 1)), values)
+    for reach in (0.0, 2 * H, 5 * H):
+        kept = connected_to_strong(r, shape, 0.9, reach=reach)
+        expected = reach_by_loop(r, shape, 0.9, reach)
+        assert 0 < expected.sum() < len(r)
+        assert sorted(map(tuple, kept.index)) == sorted(map(tuple, index[expected]))
