@@ -13,6 +13,7 @@ import numpy as np
 
 from shsas_core.evaluation.extract import ExtractConfig, otsu_threshold, without_fog
 from shsas_core.evaluation.ridge import ridge
+from tests.helpers.voxel_grid import voxel_centres
 
 H = 0.0025
 N = 64
@@ -22,8 +23,7 @@ C = np.array([0.001, -0.002, 0.0013])
 
 
 def centres() -> np.ndarray:
-    ax = LO[0] + (np.arange(N) + 0.5) * H
-    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)
+    return voxel_centres(LO, N, H)
 
 
 def shell_with_dim_flank() -> np.ndarray:

@@ -16,6 +16,7 @@ from shsas_core.data.survey import SceneBox
 from shsas_core.data.volume import Grid, Volume
 from shsas_core.evaluation.extract import ExtractConfig, ridge_cloud
 from shsas_core.evaluation.ridge import Ridge, connected_to_strong, piece_labels
+from tests.helpers.voxel_grid import voxel_centres
 
 H = 0.0025
 N = 64
@@ -29,8 +30,7 @@ FAR = (-0.06, -0.06, -0.06, 0.3)
 
 
 def centres() -> np.ndarray:
-    ax = LO[0] + (np.arange(N) + 0.5) * H
-    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)
+    return voxel_centres(LO, N, H)
 
 
 def scene() -> np.ndarray:

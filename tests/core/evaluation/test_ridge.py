@@ -21,6 +21,7 @@ from shsas_core.evaluation.ridge import (
     suppress_sidelobes,
     visibility_votes,
 )
+from tests.helpers.voxel_grid import voxel_centres
 
 H = 0.0025
 N = 64
@@ -30,8 +31,7 @@ C = np.array([0.001, -0.002, 0.0013])  # off the voxel lattice
 
 
 def centres() -> np.ndarray:
-    ax = LO[0] + (np.arange(N) + 0.5) * H
-    return np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)
+    return voxel_centres(LO, N, H)
 
 
 def shell(width: float = 0.006) -> np.ndarray:
