@@ -250,7 +250,7 @@ def write_board_record(board: dict, load_info: dict) -> Path:
     changed = {k: v for k, v in board.get("overrides", {}).items() if k != "methods"}
     # ... and so is a run away from the defaults (an A/B arm must not overwrite the scoreboard's row)
     name = (f"real-bunny-steps{steps}" + ("-" + "-".join(methods) if methods else "")
-            + "".join(f"-{k.replace('_', '-')}-{v}" for k, v in changed.items()))
+            + records.override_suffix(changed))
     who = ", ".join(methods) if methods else "every method"
     budget = "the defaults" + (" but " + ", ".join(f"{k} {v}" for k, v in changed.items()) if changed else "")
     rec = records.make_record(

@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.record:
         what = "; ".join(f"{v}: {VARIANTS[v]}" for v in names)
         record = records.make_record(
-            "variants", f"variants-{scene}" + "".join(f"-{k.replace('_', '-')}-{v}" for k, v in overrides.items()),
+            "variants", f"variants-{scene}" + records.override_suffix(overrides),
             f"default spec on surveys unlike the simulator's defaults ({scene}, {DEMO_HEIGHTS} x {DEMO_ANGLES} pings)",
             "python " + " ".join(["benchmarks/bench_variants.py", *(argv if argv is not None else sys.argv[1:])]),
             COLUMNS, rows, machine_info=machine, load_info=load, scene=scene,

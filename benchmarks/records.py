@@ -97,6 +97,12 @@ def today() -> str:
     return datetime.datetime.now(datetime.UTC).date().isoformat()
 
 
+def override_suffix(overrides: Mapping[str, Any]) -> str:
+    """The part of a record's name that says which spec fields a run changed (``-sparsity-0.3``):
+    a run away from the defaults is its own record, so it never overwrites the scoreboard's row."""
+    return "".join(f"-{k.replace('_', '-')}-{v}" for k, v in overrides.items())
+
+
 def make_record(benchmark: str, name: str, title: str, command: str,
                 columns: Sequence[Sequence[str]], rows: Iterable[Mapping[str, Any]], *,
                 machine_info: Mapping[str, Any], load_info: Mapping[str, Any], notes: str = "",
