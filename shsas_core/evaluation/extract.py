@@ -45,6 +45,10 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    ``piece_reach`` range resolutions of a piece that does (a dim continuation of the object
    across a gap in the ridge, like a sphere's underside lit only at grazing angles)
    (docs/decisions/bright-pieces.md).
+   **Specks** (``min_piece``): a piece with fewer points than ``min_piece`` of the largest
+   piece's is an isolated noise peak, and goes, unless it lies within the same ``piece_reach``
+   of a larger piece: a surface lit at grazing angles (the lower flank of an object on the floor)
+   breaks into small ridge pieces along the sheet they continue (docs/decisions/specks-by-the-sheet.md).
    **Fog** (``fog_share``; off by default): a candidate for a neural field's volume, measured
    and not adopted (docs/results.md, "A fog step for the neural ridge", with the old
    background). On sparse surveys the fit leaves faint sheets in empty space that passed the
@@ -139,14 +143,15 @@ class ExtractConfig(BaseModel):
     piece_level: float | None = Field(1.0, gt=0, le=1, description="each ridge piece holds a point at "
                                       "this share of Otsu's level of the ridge's magnitudes or lies within "
                                       "piece_reach of one that does (module doc, step 2); None: off")
-    piece_reach: float = Field(2.0, ge=0, le=10, description="how near a dim ridge piece must come to a "
-                               "bright one to stay, in range resolutions")
+    piece_reach: float = Field(2.0, ge=0, le=10, description="how near a dim (or small) ridge piece must come "
+                               "to a bright (or large) one to stay, in range resolutions")
     fog_share: float | None = Field(None, ge=0, le=1, description="the fog step for a neural field's "
                                     "ridge (module doc, step 2): when more than this share of it lies below "
                                     "τ, those points go and each piece must reach Otsu's level of the ridge's "
                                     "magnitudes; None: off")
     min_piece: float = Field(0.01, ge=0, lt=1, description="ridge pieces with fewer points than this share "
-                             "of the largest piece's are dropped as specks")
+                             "of the largest piece's are dropped as specks unless they lie within "
+                             "piece_reach of a larger piece (module doc, step 2)")
     trim: float = Field(1.45, gt=0, description="Poisson faces farther than this many range resolutions "
                         "from every surface point are cut")
     faces_per_point: float = Field(2.0, gt=0, description="face budget of the simplified mesh per surface point")
@@ -373,7 +378,7 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         mags = norm[tuple(r.index.T)]
         r = connected_to_strong(r, grid.shape, cfg.piece_level * otsu_threshold(mags), values=mags,
                                 reach=cfg.piece_reach * res)
-    r = drop_small_pieces(r, grid.shape, cfg.min_piece)
+    r = drop_small_pieces(r, grid.shape, cfg.min_piece, reach=cfg.piece_reach * res)
     if sigma_n != sigma:
         r = dataclasses.replace(r, normals=sheet_normals(norm, r.index, grid.spacing, sigma_n))
     votes = None

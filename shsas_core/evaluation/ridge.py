@@ -164,14 +164,16 @@ def piece_labels(r: Ridge, shape: tuple[int, int, int]) -> tuple[np.ndarray, int
     return labels[tuple(r.index.T)], int(count)
 
 
-def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float) -> Ridge:
+def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float, reach: float = 0.0) -> Ridge:
     """Keep the ridge voxels whose 26-connected piece holds at least ``min_share`` of the points of
-    the largest piece: a surface is a connected sheet, isolated noise peaks are specks."""
+    the largest piece, and, with ``reach`` > 0 (m), the smaller pieces with a point within
+    ``reach`` of such a piece: a surface is a connected sheet, isolated noise peaks are specks,
+    but a surface lit at grazing angles breaks into small pieces along the sheet it continues."""
     if len(r) == 0 or min_share <= 0:
         return r
     lab, count = piece_labels(r, shape)
     sizes = np.bincount(lab, minlength=count + 1)
-    return r.subset(sizes[lab] >= min_share * sizes[1:].max())
+    return connected_to_strong(r, shape, min_share * sizes[1:].max(), values=sizes[lab], reach=reach)
 
 
 def orient_toward_sensors(points: np.ndarray, normals: np.ndarray, sensors: np.ndarray,

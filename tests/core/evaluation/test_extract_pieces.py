@@ -1,11 +1,12 @@
-"""The bright-pieces step of the ridge extraction (``ExtractConfig.piece_level``, ``piece_reach``):
-a dim piece of ridge far from the object goes, a dim piece within reach of it stays, and with the
-step off both stay.
+"""The pieces steps of the ridge extraction: bright pieces (``ExtractConfig.piece_level``,
+``piece_reach``): a dim piece of ridge far from the object goes, a dim piece within reach of it
+stays, and with the step off both stay; specks (``min_piece``, with the same reach): small pieces
+within reach of the object's sheet stay, a small piece apart from it goes.
 
-Reference: a bright Gaussian shell plus two dim flat patches, one 13 mm outside the shell (within
-two range resolutions of 8.6 mm) and one in the box's corner (5 cm and more from the shell);
-which ridge point belongs to which is known by construction. The reach itself is checked against
-a brute-force loop over the pieces' pairwise distances.
+Reference: a bright Gaussian shell plus dim flat patches, 13 mm outside the shell (within two
+range resolutions of 8.6 mm) and in the box's corner (5 cm and more from the shell); which ridge
+point belongs to which is known by construction. The reach itself is checked against a
+brute-force loop over the pieces' pairwise distances.
 """
 
 from __future__ import annotations
@@ -97,3 +98,42 @@ def test_reach_matches_a_loop_over_pieces() -> None:
         expected = reach_by_loop(r, shape, 0.9, reach)
         assert 0 < expected.sum() < len(r)
         assert sorted(map(tuple, kept.index)) == sorted(map(tuple, index[expected]))
+
+
+#: Small pieces (centre x, y, z, peak): four 5 mm squares 13 mm outside the shell's top, apart
+#: from each other (a surface lit at grazing angles, broken into fragments), and one voxel column in the
+#: box's corner.
+FRAGMENTS = tuple((C[0] + dx, C[1] + dy, C[2] + R0 + 0.013, 0.5) for dx, dy in
+                  ((-0.012, -0.012), (-0.012, 0.012), (0.012, -0.012), (0.012, 0.012)))
+SPECK = (-0.06125, -0.06125, -0.06, 1.0)  # on a column of voxel centres
+
+
+def small_pieces_scene() -> np.ndarray:
+    x = centres()
+    r = np.linalg.norm(x - C, axis=-1)
+    v = np.exp(-0.5 * ((r - R0) / 0.004) ** 2)
+    for (cx, cy, cz, peak), half in (*((f, 0.0025) for f in FRAGMENTS), (SPECK, 0.001)):
+        inside = (np.abs(x[..., 0] - cx) < half) & (np.abs(x[..., 1] - cy) < half)
+        v = np.maximum(v, np.where(inside, peak * np.exp(-0.5 * ((x[..., 2] - cz) / 0.003) ** 2), 0.0))
+    return (v + 1e-6).astype(np.float32)
+
+
+def on_piece(points: np.ndarray, piece: tuple[float, float, float, float]) -> np.ndarray:
+    return np.all(np.abs(points - np.asarray(piece[:3])) < 0.005, axis=1)
+
+
+def test_fragments_by_the_object_stay_and_a_speck_apart_goes() -> None:
+    box = SceneBox(min=tuple(LO), max=tuple(LO + N * H))
+    vol = Volume(Grid.over(box, N), small_pieces_scene())
+    kept = ridge_cloud(vol, 0.2, ExtractConfig(), resolution=RES).points
+    unfiltered = ridge_cloud(vol, 0.2, ExtractConfig(min_piece=0), resolution=RES).points
+    shell = (np.abs(np.linalg.norm(unfiltered - C, axis=1) - R0) < 0.003).sum()
+    for patch in (*FRAGMENTS, SPECK):
+        # each is a speck by size: under min_piece's share of the shell's ridge
+        assert 0 < on_piece(unfiltered, patch).sum() < ExtractConfig().min_piece * shell
+    for patch in FRAGMENTS:
+        assert on_piece(kept, patch).sum() == on_piece(unfiltered, patch).sum()
+    assert on_piece(kept, SPECK).sum() == 0
+    # no reach: the fragments are specks too
+    alone = ridge_cloud(vol, 0.2, ExtractConfig(piece_reach=0), resolution=RES).points
+    assert all(on_piece(alone, patch).sum() == 0 for patch in FRAGMENTS)
