@@ -173,7 +173,7 @@ def drop_small_pieces(r: Ridge, shape: tuple[int, int, int], min_share: float, r
         return r
     lab, count = piece_labels(r, shape)
     sizes = np.bincount(lab, minlength=count + 1)
-    return connected_to_strong(r, shape, min_share * sizes[1:].max(), values=sizes[lab], reach=reach)
+    return _pieces_and_their_reach(r, lab, count, sizes >= min_share * sizes[1:].max(), reach)
 
 
 def orient_toward_sensors(points: np.ndarray, normals: np.ndarray, sensors: np.ndarray,
@@ -354,6 +354,12 @@ def connected_to_strong(r: Ridge, shape: tuple[int, int, int], strong: float,
     lab, count = piece_labels(r, shape)
     good = np.zeros(count + 1, dtype=bool)
     good[lab[values >= strong]] = True
+    return _pieces_and_their_reach(r, lab, count, good, reach)
+
+
+def _pieces_and_their_reach(r: Ridge, lab: np.ndarray, count: int, good: np.ndarray, reach: float) -> Ridge:
+    """The points of ``r`` whose piece (``lab``, (P,) in 1..count) is ``good`` ((count + 1,)
+    bool), and, with ``reach`` > 0 (m), of the pieces with a point within ``reach`` of those."""
     keep = good[lab]
     if reach > 0 and keep.any() and not keep.all():
         dist, _ = cKDTree(r.points[keep]).query(r.points[~keep], distance_upper_bound=reach)

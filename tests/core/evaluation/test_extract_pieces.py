@@ -34,20 +34,22 @@ def centres() -> np.ndarray:
     return voxel_centres(LO, N, H)
 
 
-def scene() -> np.ndarray:
-    """The shell (peak 1) and the two patches (flat 2 cm squares across z, peaks 0.5 and 0.3)."""
+def shell_with_patches(patches) -> Volume:
+    """The shell (peak 1) and flat patches across z, each ``((x, y, z, peak), half width m)``."""
     x = centres()
     r = np.linalg.norm(x - C, axis=-1)
     v = np.exp(-0.5 * ((r - R0) / 0.004) ** 2)
-    for cx, cy, cz, peak in (NEAR, FAR):
-        inside = (np.abs(x[..., 0] - cx) < 0.01) & (np.abs(x[..., 1] - cy) < 0.01)
+    for (cx, cy, cz, peak), half in patches:
+        inside = (np.abs(x[..., 0] - cx) < half) & (np.abs(x[..., 1] - cy) < half)
         v = np.maximum(v, np.where(inside, peak * np.exp(-0.5 * ((x[..., 2] - cz) / 0.003) ** 2), 0.0))
-    return (v + 1e-6).astype(np.float32)  # non-zero everywhere: the whole box is estimated
+    box = SceneBox(min=tuple(LO), max=tuple(LO + N * H))
+    # non-zero everywhere: the whole box is estimated
+    return Volume(Grid.over(box, N), (v + 1e-6).astype(np.float32))
 
 
 def cloud(config: ExtractConfig):
-    box = SceneBox(min=tuple(LO), max=tuple(LO + N * H))
-    return ridge_cloud(Volume(Grid.over(box, N), scene()), 0.2, config, resolution=RES)
+    """The ridge of the shell and the two 2 cm patches (peaks 0.5 and 0.3)."""
+    return ridge_cloud(shell_with_patches(((NEAR, 0.01), (FAR, 0.01))), 0.2, config, resolution=RES)
 
 
 def near_patch(points: np.ndarray, patch: tuple[float, float, float, float]) -> np.ndarray:
@@ -108,23 +110,12 @@ FRAGMENTS = tuple((C[0] + dx, C[1] + dy, C[2] + R0 + 0.013, 0.5) for dx, dy in
 SPECK = (-0.06125, -0.06125, -0.06, 1.0)  # on a column of voxel centres
 
 
-def small_pieces_scene() -> np.ndarray:
-    x = centres()
-    r = np.linalg.norm(x - C, axis=-1)
-    v = np.exp(-0.5 * ((r - R0) / 0.004) ** 2)
-    for (cx, cy, cz, peak), half in (*((f, 0.0025) for f in FRAGMENTS), (SPECK, 0.001)):
-        inside = (np.abs(x[..., 0] - cx) < half) & (np.abs(x[..., 1] - cy) < half)
-        v = np.maximum(v, np.where(inside, peak * np.exp(-0.5 * ((x[..., 2] - cz) / 0.003) ** 2), 0.0))
-    return (v + 1e-6).astype(np.float32)
-
-
 def on_piece(points: np.ndarray, piece: tuple[float, float, float, float]) -> np.ndarray:
     return np.all(np.abs(points - np.asarray(piece[:3])) < 0.005, axis=1)
 
 
 def test_fragments_by_the_object_stay_and_a_speck_apart_goes() -> None:
-    box = SceneBox(min=tuple(LO), max=tuple(LO + N * H))
-    vol = Volume(Grid.over(box, N), small_pieces_scene())
+    vol = shell_with_patches((*((f, 0.0025) for f in FRAGMENTS), (SPECK, 0.001)))
     kept = ridge_cloud(vol, 0.2, ExtractConfig(), resolution=RES).points
     unfiltered = ridge_cloud(vol, 0.2, ExtractConfig(min_piece=0), resolution=RES).points
     shell = (np.abs(np.linalg.norm(unfiltered - C, axis=1) - R0) < 0.003).sum()
