@@ -10,13 +10,13 @@ import trimesh
 
 from shsas_core.common.errors import ShsasError
 from shsas_core.evaluation import meshing
+from tests.helpers.sphere_data import fibonacci_sphere
 
 
-def _sphere_points(n: int, radius: float, seed: int = 0, upper_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3) points on a sphere about the origin, m, and their outward unit normals."""
-    rng = np.random.default_rng(seed)
-    u = rng.normal(size=(n, 3))
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
+def _sphere_points(n: int, radius: float, upper_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) points on a sphere about the origin, m, and their outward unit normals (the upper
+    half, folded over the equator, with ``upper_only``)."""
+    u = fibonacci_sphere(n)
     if upper_only:
         u[:, 2] = np.abs(u[:, 2])
     return radius * u, u
