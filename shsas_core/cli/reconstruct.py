@@ -1,4 +1,4 @@
-"""`shsas reconstruct SURVEY --methods ... --out DIR`: run the pipeline on a survey file."""
+"""`shsas reconstruct SURVEY [--out DIR]`: run the pipeline on a survey file."""
 
 from __future__ import annotations
 
@@ -17,6 +17,19 @@ if TYPE_CHECKING:
     from shsas_core.evaluation.diagnostics import ResultWarning
 
 
+#: What the default output folder's name adds to the survey's (so a bare re-run resumes).
+OUT_SUFFIX = "_reconstruction"
+
+
+def default_out_dir(survey: str | Path) -> Path:
+    """The output folder of ``shsas reconstruct SURVEY`` without ``--out``: the survey's name
+    without its suffix plus :data:`OUT_SUFFIX`, in the current folder (a file ``data/scan.h5``,
+    a folder ``scan/`` or a zip ``scan.zip`` -> ``scan_reconstruction``)."""
+    path = Path(survey)
+    name = path.name if path.is_dir() else path.stem
+    return Path((name or "survey") + OUT_SUFFIX)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reconstruct", help="reconstruct a survey with backprojection, Reed et al. (L=0) and SH-SAS",
@@ -31,9 +44,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "A result that looks failed (collapsed volume, cloud filling the scene box, data loss that did "
         "not fall) prints one line 'warning: METHOD: ... (MEASURE vs limit LIMIT)' on stderr and is "
         "flagged in the report; the exit code stays 0, since the job ran (docs/usage.md, Warnings). "
-        "Example: shsas reconstruct survey.h5 --methods backprojection,shsas --iters 2000 --out out/")
+        "Examples: shsas reconstruct survey.h5 (every method at the defaults, into survey"
+        f"{OUT_SUFFIX}/); shsas reconstruct survey.h5 --methods backprojection,shsas --iters 2000 --out out/")
     p.add_argument("survey", help="survey file (canonical .h5, AirSAS folder/.zip/.pkl, SVSS .hdf5)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder (created; reused to resume)")
+    p.add_argument("--out", metavar="DIR", help="output folder (created; reused to resume); default: "
+                   f"SURVEY's name without its suffix plus '{OUT_SUFFIX}', in the current folder "
+                   f"(scan.h5 -> scan{OUT_SUFFIX}/)")
     add_spec_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
@@ -48,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     budget = memory_budget()
     bar = TqdmProgress(disable=args.quiet)
     try:
-        result = run_pipeline(spec, args.survey, Path(args.out), progress=bar, memory_budget=budget)
+        out = Path(args.out) if args.out else default_out_dir(args.survey)
+        result = run_pipeline(spec, args.survey, out, progress=bar, memory_budget=budget)
     finally:
         bar.close()
     print_result(result)

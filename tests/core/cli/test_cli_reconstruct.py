@@ -205,3 +205,30 @@ def test_reconstruct_the_real_deconvolved_bunny_zip_with_every_method(tmp_path, 
         assert vol.shape == (24, 24, 19) and np.isfinite(vol).all() and np.abs(vol).max() > 0
         assert trimesh.load(out / f"{m}_mesh.ply", force="mesh").faces.shape[0] > 0
     assert "report.html" in capsys.readouterr().out
+
+
+def test_reconstruct_without_out_writes_beside_the_survey_name_and_resumes(survey_file, tmp_path, capsys,
+                                                                           monkeypatch):
+    """`shsas reconstruct FILE` with no options runs: the outputs go to FILE's name plus
+    '_reconstruction' in the current folder, and the same bare command again resumes there."""
+    path, _ = survey_file
+    monkeypatch.chdir(tmp_path)
+    args = ["reconstruct", str(path), "--methods", "backprojection", "--grid", "12", "--device", "cpu", "--quiet"]
+    assert main(args) == 0
+    out = tmp_path / "cube_reconstruction"
+    assert json.loads((out / "report.json").read_text())["spec"]["methods"] == ["backprojection"]
+    assert str(out.name) in capsys.readouterr().out
+    stamp = (out / "backprojection_volume.npy").stat().st_mtime_ns
+    assert main(args) == 0  # finished methods are skipped, not redone
+    assert (out / "backprojection_volume.npy").stat().st_mtime_ns == stamp
+
+
+def test_default_out_dir_names(tmp_path):
+    from pathlib import Path
+
+    from shsas_core.cli.reconstruct import default_out_dir
+
+    (tmp_path / "scan.v2").mkdir()
+    assert default_out_dir(tmp_path / "data" / "scan.h5") == Path("scan_reconstruction")
+    assert default_out_dir("scan.zip") == Path("scan_reconstruction")
+    assert default_out_dir(tmp_path / "scan.v2").name == "scan.v2_reconstruction"  # a folder keeps its whole name
