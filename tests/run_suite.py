@@ -14,6 +14,13 @@ start runs in a session of its own. So the science run gets a session of its own
 session's autogroup is set to niceness 19 (``/proc/self/autogroup``; where the file is missing,
 plain ``nice`` is what counts).
 
+Why OpenMP waits passively here: a job the service tests run sizes torch's OpenMP pool to both
+cores, and libgomp's default lets a thread that reaches a barrier spin on its core for a while
+before it sleeps. With the science run on that core, the spinning thread only burns the time the
+other run needs. ``OMP_WAIT_POLICY=PASSIVE`` (unless the caller set a policy) makes waiting
+threads sleep; on a 2-core AMD EPYC it cut the suite's wall time from 14.3 to 12.0 minutes
+(the science run's end; the service run's 11.2 to 10.1).
+
 Usage: ``python tests/run_suite.py [extra pytest options for both runs]``. Exits non-zero when
 either run fails; the science run's output follows the service run's.
 """
@@ -26,6 +33,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,6 +46,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SCIENCE = ["-m", "not service", "-n", "2", "--dist", "loadfile", "--no-loadscope-reorder"]
 SERVICE = ["-m", "service"]
 LOWEST = 19
+#: OpenMP settings both runs and the processes they start inherit (module doc)
+OPENMP_ENV = {"OMP_WAIT_POLICY": "PASSIVE"}
 
 
 def _lowest_priority() -> None:
@@ -49,14 +59,20 @@ def _lowest_priority() -> None:
         os.nice(LOWEST)
 
 
+def suite_env(environ: Mapping[str, str]) -> dict[str, str]:
+    """The environment of both runs: ``environ`` with :data:`OPENMP_ENV` where it sets none."""
+    return {**OPENMP_ENV, **environ}
+
+
 def main(argv: list[str]) -> int:
     pytest = [sys.executable, "-m", "pytest", "-q", *argv]
+    env = suite_env(os.environ)
     with tempfile.TemporaryFile(mode="w+") as science_log:
         science = subprocess.Popen([*pytest, *SCIENCE], cwd=ROOT, stdout=science_log,
                                    stderr=subprocess.STDOUT, start_new_session=True,
-                                   preexec_fn=_lowest_priority)
+                                   preexec_fn=_lowest_priority, env=env)
         try:
-            service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT)
+            service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT, env=env)
             science_rc = science.wait()
         finally:
             if science.poll() is None:  # interrupted: the science run's whole session goes too

@@ -9,7 +9,7 @@ import types
 from pathlib import Path
 
 from tests.conftest import slow_modules_first
-from tests.run_suite import ROOT, SCIENCE
+from tests.run_suite import ROOT, SCIENCE, suite_env
 
 
 class FakeItem:
@@ -46,3 +46,8 @@ def test_the_science_run_starts_the_module_of_a_slow_test_first(tmp_path: Path) 
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     starts = [line.split()[1] for line in sorted(log.read_text().splitlines(), key=lambda s: int(s.split()[0]))]
     assert len(starts) == 11 and "test_z_slow" in starts[:2], starts
+
+
+def test_both_runs_wait_passively_in_openmp_unless_told_otherwise() -> None:
+    assert suite_env({"PATH": "/bin"}) == {"PATH": "/bin", "OMP_WAIT_POLICY": "PASSIVE"}
+    assert suite_env({"OMP_WAIT_POLICY": "ACTIVE"})["OMP_WAIT_POLICY"] == "ACTIVE"  # the caller's own
