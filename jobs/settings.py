@@ -101,6 +101,10 @@ class Settings(BaseSettings):
     worker_nice: int = Field(
         10, ge=0, le=19, description="scheduling niceness the workers add to themselves, so the API "
         "keeps the CPU it needs while a job trains")
+    worker_threads: int | None = Field(
+        None, ge=1, le=1024, description="threads of a job's torch and OpenMP pools; None: the CPUs the "
+        "worker owns (its affinity set, capped by its cgroup quota). Fewer leave cores to other work on "
+        "the host")
 
     # ---- HTTP connections (service/http_guard.py; docs/service.md, "Connections") ---------------
     api_workers: int = Field(

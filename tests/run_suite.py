@@ -21,6 +21,12 @@ other run needs. ``OMP_WAIT_POLICY=PASSIVE`` (unless the caller set a policy) ma
 threads sleep; on a 2-core AMD EPYC it cut the suite's wall time from 14.3 to 12.0 minutes
 (the science run's end; the service run's 11.2 to 10.1).
 
+Why the service run's jobs get one thread (``SHSAS_WORKER_THREADS=1``, unless the caller set
+it): several service tests watch a job that would train for hours (status, ETA, a worker killed
+mid-job) and cancel it. Such a job takes every core its pool has for as long as it is watched,
+and from the scheduler's point of view its server's session outranks the science run. With one
+thread it leaves the other core to the science tests; nothing it is watched for depends on it.
+
 Usage: ``python tests/run_suite.py [extra pytest options for both runs]``. Exits non-zero when
 either run fails; the science run's output follows the service run's.
 """
@@ -48,6 +54,8 @@ SERVICE = ["-m", "service"]
 LOWEST = 19
 #: OpenMP settings both runs and the processes they start inherit (module doc)
 OPENMP_ENV = {"OMP_WAIT_POLICY": "PASSIVE"}
+#: ... and what the service run adds (module doc)
+SERVICE_ENV = {"SHSAS_WORKER_THREADS": "1"}
 
 
 def _lowest_priority() -> None:
@@ -59,9 +67,10 @@ def _lowest_priority() -> None:
         os.nice(LOWEST)
 
 
-def suite_env(environ: Mapping[str, str]) -> dict[str, str]:
-    """The environment of both runs: ``environ`` with :data:`OPENMP_ENV` where it sets none."""
-    return {**OPENMP_ENV, **environ}
+def suite_env(environ: Mapping[str, str], service: bool = False) -> dict[str, str]:
+    """The environment of a run: ``environ`` with :data:`OPENMP_ENV` (and for the service run
+    :data:`SERVICE_ENV`) where it sets none of them."""
+    return {**OPENMP_ENV, **(SERVICE_ENV if service else {}), **environ}
 
 
 def main(argv: list[str]) -> int:
@@ -72,7 +81,7 @@ def main(argv: list[str]) -> int:
                                    stderr=subprocess.STDOUT, start_new_session=True,
                                    preexec_fn=_lowest_priority, env=env)
         try:
-            service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT, env=env)
+            service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT, env=suite_env(os.environ, service=True))
             science_rc = science.wait()
         finally:
             if science.poll() is None:  # interrupted: the science run's whole session goes too

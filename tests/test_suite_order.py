@@ -51,3 +51,9 @@ def test_the_science_run_starts_the_module_of_a_slow_test_first(tmp_path: Path) 
 def test_both_runs_wait_passively_in_openmp_unless_told_otherwise() -> None:
     assert suite_env({"PATH": "/bin"}) == {"PATH": "/bin", "OMP_WAIT_POLICY": "PASSIVE"}
     assert suite_env({"OMP_WAIT_POLICY": "ACTIVE"})["OMP_WAIT_POLICY"] == "ACTIVE"  # the caller's own
+
+
+def test_the_service_run_gives_its_jobs_one_thread_unless_told_otherwise() -> None:
+    assert suite_env({}, service=True) == {"OMP_WAIT_POLICY": "PASSIVE", "SHSAS_WORKER_THREADS": "1"}
+    assert suite_env({"SHSAS_WORKER_THREADS": "2"}, service=True)["SHSAS_WORKER_THREADS"] == "2"
+    assert "SHSAS_WORKER_THREADS" not in suite_env({})  # the science run's tests read the default

@@ -70,7 +70,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
     settings = get_settings()
     configure_logging(settings.log_format, "info")
     lower_priority(settings.worker_nice)  # before torch starts its threads
-    size_thread_pools()  # to the CPUs this child owns, not the machine's
+    size_thread_pools(settings.worker_threads)  # the CPUs this child owns (not the machine's), or the setting
     stopping = threading.Event()
 
     def on_term(*_) -> None:

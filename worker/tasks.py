@@ -39,7 +39,7 @@ def _pool_child_start(**_) -> None:
     settings = get_settings()
     configure_logging(settings.log_format, logging.getLogger("shsas").level or "info")
     lower_priority(settings.worker_nice)
-    size_thread_pools()
+    size_thread_pools(settings.worker_threads)
 
 
 @app.task(name=TASK_NAME, acks_late=True, reject_on_worker_lost=True, ignore_result=True)
