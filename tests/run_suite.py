@@ -18,8 +18,7 @@ Why OpenMP waits passively here: a job the service tests run sizes torch's OpenM
 cores, and libgomp's default lets a thread that reaches a barrier spin on its core for a while
 before it sleeps. With the science run on that core, the spinning thread only burns the time the
 other run needs. ``OMP_WAIT_POLICY=PASSIVE`` (unless the caller set a policy) makes waiting
-threads sleep; on a 2-core AMD EPYC it cut the suite's wall time from 14.3 to 12.0 minutes
-(the science run's end; the service run's 11.2 to 10.1).
+threads sleep (docs/architecture.md has the suite's timings with and without).
 
 Why the service run's jobs get one thread (``SHSAS_WORKER_THREADS=1``, unless the caller set
 it): several service tests watch a job that would train for hours (status, ETA, a worker killed
@@ -75,11 +74,10 @@ def suite_env(environ: Mapping[str, str], service: bool = False) -> dict[str, st
 
 def main(argv: list[str]) -> int:
     pytest = [sys.executable, "-m", "pytest", "-q", *argv]
-    env = suite_env(os.environ)
     with tempfile.TemporaryFile(mode="w+") as science_log:
         science = subprocess.Popen([*pytest, *SCIENCE], cwd=ROOT, stdout=science_log,
                                    stderr=subprocess.STDOUT, start_new_session=True,
-                                   preexec_fn=_lowest_priority, env=env)
+                                   preexec_fn=_lowest_priority, env=suite_env(os.environ))
         try:
             service_rc = subprocess.call([*pytest, *SERVICE], cwd=ROOT, env=suite_env(os.environ, service=True))
             science_rc = science.wait()

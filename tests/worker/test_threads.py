@@ -19,11 +19,15 @@ _CHILD = ("import os, torch\nfrom worker.tasks import _pool_child_start\n_pool_c
           "print(torch.get_num_threads(), os.environ['OMP_NUM_THREADS'])")
 
 
-def _pools(**env: str) -> list[str]:
+def _child(**env: str) -> subprocess.CompletedProcess[str]:
     full = {k: v for k, v in os.environ.items() if k != "SHSAS_WORKER_THREADS"}
     full.update({"PYTHONPATH": str(ROOT), "SHSAS_LOG_FORMAT": "text", **env})
-    proc = subprocess.run([sys.executable, "-c", _CHILD], env=full, cwd=ROOT, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-c", _CHILD], env=full, cwd=ROOT, capture_output=True, text=True,
                           timeout=120)
+
+
+def _pools(**env: str) -> list[str]:
+    proc = _child(**env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return proc.stdout.split()
 
@@ -35,7 +39,5 @@ def test_pool_child_sizes_its_pools_to_its_cpus_or_the_setting(setting: str | No
 
 
 def test_a_bad_thread_count_is_refused_by_name() -> None:
-    full = {**os.environ, "PYTHONPATH": str(ROOT), "SHSAS_WORKER_THREADS": "0"}
-    proc = subprocess.run([sys.executable, "-c", _CHILD], env=full, cwd=ROOT, capture_output=True, text=True,
-                          timeout=120)
+    proc = _child(SHSAS_WORKER_THREADS="0")
     assert proc.returncode != 0 and "worker_threads" in proc.stderr
