@@ -22,6 +22,15 @@ term's answer killed every unit of the second hidden layer. The field was then a
 zero normals and no gradient. That happened on 2 of 3 seeds; with the factor, none of the 3
 collapsed (docs/neural.md). L = 0 is unaffected.
 
+**The hidden biases at initialisation** (:data:`HIDDEN_BIAS_INIT`). The table starts within
+±1e-4, so at initialisation a hidden unit's input is almost exactly its bias. torch's default
+(the product's) draws the biases uniformly in ±1/√fan_in: each first-layer unit with a negative
+bias is then off at every point, gets no gradient, and stays off unless the table grows enough
+to turn it on, so how many units a fit has is a draw of the seed. A constant bias leaves no unit
+off; zero biases took the fit-seed spread of two simulated cells from 0.06-0.09 to under 0.01,
+but cost two other cells and training from an empty field, so the default stays
+(docs/decisions/zero-hidden-biases.md).
+
 ``SHField.set_active_levels(a)`` weights hash level ``l`` by ``(1 - cos(π clamp(a - l, 0, 1))) / 2``
 (BARF's window, Lin et al. 2021): levels below ``a`` count fully, the next one partly, finer ones
 not at all. The trainer moves ``a`` up over the first iterations (``TrainConfig.coarse_to_fine``),
@@ -64,6 +73,10 @@ from shsas_core.neural.fields.encoding import (
 from shsas_core.neural.fields.sh import sh_basis
 
 INV_SQRT_4PI = 1.0 / math.sqrt(4.0 * math.pi)
+
+#: The hidden layers' biases at initialisation (module doc): None, torch's default draw (uniform
+#: in ±1/√fan_in); a number, that constant. The weights are drawn the same either way.
+HIDDEN_BIAS_INIT: float | None = None
 
 
 def level_window(n_levels: int, n_features: int, active: float) -> torch.Tensor:
@@ -127,6 +140,9 @@ class SHField(torch.nn.Module):
             # Re c_00 gets the bias giving density init_density; the rest start near 0 so the
             # initial scattering is almost isotropic and weak.
             last.weight.mul_(0.1)
+            if HIDDEN_BIAS_INIT is not None:
+                for hidden in self.linears[:-1]:
+                    hidden.bias.fill_(HIDDEN_BIAS_INIT)
             last.bias.zero_()
             last.bias[0] = cfg.init_density / (cfg.zeta * INV_SQRT_4PI)
         scale = torch.full((2 * self.k,), float(cfg.directional_scale), dtype=torch.float64)

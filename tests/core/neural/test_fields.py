@@ -11,6 +11,7 @@ from pydantic import ValidationError
 from shsas_core.common.errors import ShsasError
 from shsas_core.data.survey import SceneBox
 from shsas_core.neural.fields import HashEncodingConfig, SHField, normals_by_autograd, sh_basis
+from shsas_core.neural.fields import field as field_module
 from shsas_core.neural.fields.config import FieldConfig
 
 BOX = SceneBox(min=(-0.2, -0.1, 0.0), max=(0.2, 0.1, 0.25))  # not a cube: axis scaling matters
@@ -219,6 +220,32 @@ def test_initial_density_low_but_nonzero() -> None:
     assert torch.all(rho > 0.01) and torch.all(rho < 0.04)
     s = field.scattering(x, _dirs(1000).float()).detach().abs()
     assert float(s.max()) < 0.5
+
+
+def _hidden_on_shares(seed: int) -> list[torch.Tensor]:
+    """Per hidden layer, the share of 4,096 box points at which each unit of a new field is on."""
+    torch.manual_seed(seed)
+    field = SHField(FieldConfig(scene_box=BOX))
+    with torch.no_grad():
+        u, _inside_box = field._unit(_inside(4096, seed=seed).float())
+        h = field._encode(u)
+        on = []
+        for hidden in field.linears[:-1]:
+            h = torch.relu(hidden(h))
+            on.append((h > 0).double().mean(0))
+    return on
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_hidden_bias_init_decides_which_units_start_off_everywhere(seed: int, monkeypatch) -> None:
+    """At initialisation the table is near 0, so a hidden unit's input is its bias: torch's draw
+    (the default) leaves units off at every point of the box, constant biases leave none."""
+    assert any(bool((share == 0).any()) for share in _hidden_on_shares(seed))
+    monkeypatch.setattr(field_module, "HIDDEN_BIAS_INIT", 0.0)
+    on = _hidden_on_shares(seed)
+    assert (on[0] > 0.25).all(), on[0]  # the first layer's units split the box about in half
+    for share in on[1:]:
+        assert (share > 0).all(), share
 
 
 def test_no_grad_inference_and_shapes() -> None:
