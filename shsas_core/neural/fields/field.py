@@ -26,8 +26,8 @@ collapsed (docs/neural.md). L = 0 is unaffected.
 ±1e-4, so at initialisation a hidden unit's input is almost exactly its bias. torch's default
 (the product's) draws the biases uniformly in ±1/√fan_in: each first-layer unit with a negative
 bias is then off at every point, gets no gradient, and stays off unless the table grows enough
-to turn it on, so how many units a fit has is a draw of the seed. A constant bias leaves no unit
-off; zero biases took the fit-seed spread of two simulated cells from 0.06-0.09 to under 0.01,
+to turn it on, so how many units a fit has is a draw of the seed. A zero or positive constant
+bias leaves no unit off; zero biases took the fit-seed spread of two simulated cells from 0.06-0.09 to under 0.01,
 but cost two other cells and training from an empty field, so the default stays
 (docs/decisions/zero-hidden-biases.md).
 

@@ -239,7 +239,7 @@ def _hidden_on_shares(seed: int) -> list[torch.Tensor]:
 @pytest.mark.parametrize("seed", range(5))
 def test_hidden_bias_init_decides_which_units_start_off_everywhere(seed: int, monkeypatch) -> None:
     """At initialisation the table is near 0, so a hidden unit's input is its bias: torch's draw
-    (the default) leaves units off at every point of the box, constant biases leave none."""
+    (the default) leaves units off at every point of the box, zero biases leave none."""
     assert any(bool((share == 0).any()) for share in _hidden_on_shares(seed))
     monkeypatch.setattr(field_module, "HIDDEN_BIAS_INIT", 0.0)
     on = _hidden_on_shares(seed)
