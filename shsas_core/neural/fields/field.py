@@ -27,10 +27,8 @@ collapsed (docs/neural.md). L = 0 is unaffected.
 (the product's) draws the biases uniformly in ±1/√fan_in: each first-layer unit with a negative
 bias is then off at every point, gets no gradient, and stays off unless the table grows enough
 to turn it on, so how many units a fit has is a draw of the seed. A zero or positive constant
-bias leaves no first-layer unit off; zero biases took the fit-seed spread of two simulated cells
-from 0.06-0.09 to under 0.01 but cost two other cells and training from an empty field, and 0.1
-shrank SH-SAS's spread on four anisotropic scenes but failed the warm-start guarantee at its
-seed, so the default stays (docs/decisions/zero-hidden-biases.md).
+bias leaves no first-layer unit off; the constants measured so far (zero, 0.1, 0.05) and why
+none is the default yet are in docs/decisions/zero-hidden-biases.md.
 
 ``SHField.set_active_levels(a)`` weights hash level ``l`` by ``(1 - cos(π clamp(a - l, 0, 1))) / 2``
 (BARF's window, Lin et al. 2021): levels below ``a`` count fully, the next one partly, finer ones
