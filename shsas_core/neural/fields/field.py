@@ -28,7 +28,7 @@ collapsed (docs/neural.md). L = 0 is unaffected.
 bias is then off at every point, gets no gradient, and stays off unless the table grows enough
 to turn it on, so how many units a fit has is a draw of the seed. A zero or positive constant
 bias leaves no first-layer unit off; the constants measured so far (zero, 0.1, 0.05) and why
-none is the default yet are in docs/decisions/zero-hidden-biases.md.
+none is the default are in docs/decisions/zero-hidden-biases.md.
 
 ``SHField.set_active_levels(a)`` weights hash level ``l`` by ``(1 - cos(π clamp(a - l, 0, 1))) / 2``
 (BARF's window, Lin et al. 2021): levels below ``a`` count fully, the next one partly, finer ones
