@@ -15,6 +15,7 @@ import pytest
 import torch
 
 from shsas_core.data.survey import Survey, SurveyMeta, default_pulse
+from tests.schedule import order_items
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -88,23 +89,8 @@ def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None) -> 
     _cpu_report.flush()
 
 
-def slow_modules_first(items: list[pytest.Item]) -> list[pytest.Item]:
-    """``items`` with the modules that hold a ``slow`` test first, each module's tests kept
-    together and in order. Under pytest-xdist the workers are handed whole modules in this order
-    (``--dist loadfile --no-loadscope-reorder``; without the second option xdist hands them out
-    by number of tests, most first): a long module handed out last ran alone at the end while
-    the other worker idled (longest first is the classic greedy rule for two machines)."""
-    def module(item: pytest.Item) -> str | None:
-        mod = getattr(item, "module", None)
-        return mod.__name__ if mod is not None else None
-
-    slow = {module(item) for item in items if item.get_closest_marker("slow") is not None}
-    return sorted(items, key=lambda item: module(item) is None or module(item) not in slow)
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if os.environ.get("PYTEST_XDIST_WORKER"):  # every worker sorts alike: the order is deterministic
-        items[:] = slow_modules_first(items)
+    order_items(items)
     if torch.cuda.is_available():
         return
     skip = pytest.mark.skip(reason="needs CUDA")

@@ -1,4 +1,5 @@
-"""The suite's own scheduling rule (tests/conftest.py): modules with a slow test go first."""
+"""The suite's own scheduling rule (tests/schedule.py, applied by tests/conftest.py): modules with
+a slow test go first."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ import sys
 import types
 from pathlib import Path
 
-from tests.conftest import slow_modules_first
 from tests.run_suite import ROOT, SCIENCE, suite_env
+from tests.schedule import slow_modules_first
 
 
 class FakeItem:
@@ -34,7 +35,9 @@ def test_the_science_run_starts_the_module_of_a_slow_test_first(tmp_path: Path) 
     by number of tests, handed it out last."""
     log = tmp_path / "starts.log"
     (tmp_path / "pytest.ini").write_text("[pytest]\nmarkers =\n    slow: long\n    gpu: CUDA\n    service: servers\n")
-    (tmp_path / "conftest.py").write_text("from tests.conftest import pytest_collection_modifyitems  # noqa: F401\n")
+    (tmp_path / "conftest.py").write_text("from tests.schedule import order_items\n\n\n"
+                                          "def pytest_collection_modifyitems(config, items):\n"
+                                          "    order_items(items)\n")
     record = "    open(os.environ['STARTS'], 'a').write(f'{time.monotonic_ns()} {__name__}\\n')\n    time.sleep(0.05)\n"
     for name in ("test_a_many", "test_b_many"):
         body = "".join(f"def test_{i}():\n{record}\n" for i in range(5))
