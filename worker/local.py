@@ -15,6 +15,7 @@ keep claiming jobs beside the worker of the next ``shsas serve``.
 from __future__ import annotations
 
 import ctypes
+import functools
 import logging
 import multiprocessing as mp
 import os
@@ -69,9 +70,15 @@ def run_local_worker(parent_pid: int | None = None) -> None:
 
     settings = get_settings()
     configure_logging(settings.log_format, "info")
-    lower_priority(settings.worker_nice)  # before torch starts its threads
-    size_thread_pools(settings.worker_threads)  # the CPUs this child owns (not the machine's), or the setting
+    lower_priority(settings.worker_nice)  # before torch starts its threads (they inherit it)
     stopping = threading.Event()
+
+    @functools.cache
+    def size_pools() -> None:
+        # at the first job, not at start: torch is imported here, so a worker that never gets a
+        # job (a server that only takes uploads, a restart) neither holds torch's few hundred MB
+        # nor pays its import. The CPUs this child owns (not the machine's), or the setting.
+        size_thread_pools(settings.worker_threads)
 
     def on_term(*_) -> None:
         # A running job stops at its next should_stop() and goes back to the queue, where the
@@ -99,7 +106,7 @@ def run_local_worker(parent_pid: int | None = None) -> None:
         if stopping.is_set():  # the stop came while claiming: hand the job straight back
             store.release(job.id, owner)
             break
-        status = execute_job(store, settings, job.id, owner, claimed=job)
+        status = execute_job(store, settings, job.id, owner, claimed=job, prepare=size_pools)
         log.info("job %s: %s", job.id, status, extra={"job_id": job.id, "status": status})
 
 

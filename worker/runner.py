@@ -18,7 +18,7 @@ import threading
 import time
 import traceback
 import uuid
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 
 from jobs.joblog import job_log
@@ -157,11 +157,13 @@ def _checked_artifacts(out_dir: Path, names: list[str]) -> list[str]:
 
 
 def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | None = None,
-                *, claimed: Job | None = None) -> str:
+                *, claimed: Job | None = None, prepare: Callable[[], None] | None = None) -> str:
     """Claim and run ``job_id``. Returns the final status, or ``"skipped"`` when the job was not
     queued (already running elsewhere, finished or cancelled), ``"lost"`` when another
     worker took the lease over mid-run, or ``"released"`` when this worker is stopping and
-    handed the job back to the queue."""
+    handed the job back to the queue. ``prepare`` runs once the job's heartbeat is going and
+    before the science is imported (the local worker sizes its thread pools there, which
+    imports torch: slow on a loaded machine, and the lease must not go stale meanwhile)."""
     owner = owner or worker_id()
     job = claimed or store.claim(job_id, owner)
     if job is None:
@@ -175,6 +177,8 @@ def execute_job(store: JobStore, settings: Settings, job_id: str, owner: str | N
     log.info("job %s attempt %d on %s", job.id, job.attempts, owner)
     ctl = JobControl(store, settings, job, owner).start()
     try:
+        if prepare is not None:
+            prepare()
         from shsas_core.common.errors import Cancelled, ShsasError
         from shsas_core.pipeline.job import run
         from shsas_core.spec.job import ReconstructionSpec

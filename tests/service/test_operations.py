@@ -420,7 +420,9 @@ def test_celery_pool_child_runs_at_lower_priority(tmp_path, redis_url) -> None:
         proc.stop()
 
 
-def test_local_worker_runs_at_lower_priority_than_the_api(tmp_path) -> None:
+def test_local_worker_runs_at_lower_priority_than_the_api_and_idles_without_torch(tmp_path) -> None:
+    """The worker child renices itself below the API; until a job comes it has not loaded torch
+    (its thread pools are sized at the first job), so an idle server does not hold it."""
     port = free_port()
     proc = Proc([sys.executable, "-c", LAUNCHER, "serve", "--host", "127.0.0.1", "--port", str(port),
                  "--log-level", "warning"], {"SHSAS_DATA_DIR": str(tmp_path / "data"), "SHSAS_WORKER_NICE": "10"},
@@ -441,5 +443,12 @@ def test_local_worker_runs_at_lower_priority_than_the_api(tmp_path) -> None:
         assert min(_nice_of_threads(worker)) >= max(10, min(api_nice)), (api_nice, _nice_of_threads(worker))
         if min(api_nice) == 0:
             assert max(api_nice) == 0  # the API itself keeps its priority
+        log = tmp_path / "api.log"
+        while " polling " not in log.read_text(errors="replace") and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert " polling " in log.read_text(errors="replace"), proc.tail()
+        time.sleep(2 * 0.5)  # a few polls of the empty job table (default interval 0.5 s)
+        maps = Path(f"/proc/{worker}/maps").read_text()
+        assert "libtorch" not in maps, "the idle local worker has loaded torch"
     finally:
         proc.stop()
