@@ -47,7 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: --dist loadfile keeps each module on one worker, so a module fixture is built once.
 #: --no-loadscope-reorder: xdist otherwise hands out modules by number of tests, most first, so
 #: the modules of one or two long tests (the identity chain, the warm-start guarantee) came last
-#: and ran alone while the other worker idled; the conftest's order (slow modules first) holds.
+#: and ran alone while the other worker idled; tests/schedule.py's order (slow modules first) holds.
 SCIENCE = ["-m", "not service", "-n", "2", "--dist", "loadfile", "--no-loadscope-reorder"]
 SERVICE = ["-m", "service"]
 LOWEST = 19
