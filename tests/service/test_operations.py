@@ -20,6 +20,7 @@ from pathlib import Path
 import httpx
 import pytest
 
+from jobs.settings import Settings
 from shsas_core.formats import all_formats
 from shsas_core.spec.job import ReconstructionSpec
 
@@ -447,7 +448,7 @@ def test_local_worker_runs_at_lower_priority_than_the_api_and_idles_without_torc
         while " polling " not in log.read_text(errors="replace") and time.monotonic() < deadline:
             time.sleep(0.2)
         assert " polling " in log.read_text(errors="replace"), proc.tail()
-        time.sleep(2 * 0.5)  # a few polls of the empty job table (default interval 0.5 s)
+        time.sleep(2 * Settings().local_poll_interval_s)  # two polls of the empty job table
         maps = Path(f"/proc/{worker}/maps").read_text()
         assert "libtorch" not in maps, "the idle local worker has loaded torch"
     finally:
