@@ -43,6 +43,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from shsas_core.data.volume import Volume
+from shsas_core.evaluation.extract import SURFACE_KEPT_LIMIT
 
 WarningCode = Literal["collapsed", "box_filling", "surface_unclear", "loss_not_falling", "mesh_pieces", "mesh_area_ratio",
                       "mesh_normal_consistency"]
@@ -62,17 +63,6 @@ COLLAPSE_SPREAD_LIMIT = 0.01
 #: voxels above it (Otsu splits a unimodal histogram near its middle: 45-52 % measured for
 #: under-trained fields); 40 % separates the two.
 BOX_FILL_LIMIT = 0.40
-#: ``surface_unclear`` below this share of the ridge at or above τ kept by the surface test. Measured
-#: (benchmarks/bench_variants.py and the fidelity suite's anisotropic fits, 2026-11-30): 0.52-1.46
-#: on every backprojection and neural volume of the nine scenes and of the demo's survey with long
-#: records, another sample rate or 5 dB (the test's candidates start at half of τ, so it can keep
-#: more than the ridge at τ); 0.062 on the 5 kHz band (c/2B 34 mm) and 0.066 on a box 20 cm taller
-#: than the object, the two surveys whose clouds lost most of the surface (surface F1 0.06 and a
-#: 3-piece mesh 20x the demo's Chamfer-L2; Reed's field in that box, an 11-piece foam: 0.083). On
-#: the real AirSAS bunny (27,000 pings): backprojection 0.073, whose default mesh covers a third
-#: of the surface in 4 pieces, Reed 0.387 and SH-SAS 0.535, one piece each. 0.2 lies between, a
-#: factor of 1.9 from the lowest good result.
-SURFACE_KEPT_LIMIT = 0.2
 #: ``loss_not_falling`` when mean(last window) / mean(first window) of the data loss is at least
 #: this: a fit that took the residual down by less than 10 % did not learn the data (fits that
 #: learn something measured 0.24-0.79 after 150-1000 iterations, one that learns nothing 0.97).

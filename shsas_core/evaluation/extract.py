@@ -30,6 +30,16 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
    ``contrast_strong`` (hysteresis, as in Canny's edge detector). An image too coarse or too
    sparse for the test (it keeps fewer points than voxels along the box's longest axis: the
    object fills the window) keeps its whole ridge above τ.
+   **A starved surface** (``starved_share``, ``foam_span``): the test assumes a surface is a
+   small part of its window. Real echoes add less coherently than simulated ones, so a real image
+   is a thick, blurred shell whose voxels barely stand above the window's mean (the real AirSAS
+   bunny: median ratio 1.10 among the voxels at or above half of τ), and the test keeps a few
+   per cent of its ridge, scattered specks of the object. A sparse survey's sidelobe streaks give
+   the same small share, but there the ridge without the test is a foam spread through the box.
+   So when the test keeps less than ``starved_share`` of the ridge at or above τ, that ridge is
+   kept instead if its points span less than ``foam_span`` of the box's volume
+   (:func:`span_share`): measured 0.23 on the real bunny against 0.80-0.87 on the nine sparse
+   scenes' backprojections, the 5 kHz band's and the tall box's (docs/decisions/starved-surface.md).
    **The edge of the estimate** (``support_margin``): a neural field is evaluated inside its
    occupancy mask only and is exactly zero elsewhere. Within a range resolution or so of the
    mask's edge the smoothed magnitude and the local mean both see that cut-off rather than the
@@ -87,7 +97,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from shsas_core.common.errors import ShsasError
-from shsas_core.data.volume import Volume
+from shsas_core.data.volume import Grid, Volume
 from shsas_core.spec.options import MESHER, MESHER_HELP, SURFACE, SURFACE_HELP, Mesher, Surface
 
 if TYPE_CHECKING:
@@ -95,6 +105,19 @@ if TYPE_CHECKING:
 
 #: The paper's fixed iso level on the normalised magnitude (reported beside the rule's τ).
 PAPER_TAU = 0.2
+#: The contrast test keeps too little of a surface below this share of the image's ridge at or
+#: above τ (the same sheet without the test). Measured (benchmarks/bench_variants.py and the
+#: fidelity suite's dense and anisotropic fits): 0.52-1.46 on every backprojection and neural
+#: volume of the nine scenes and of the demo's survey with long records, another sample rate or
+#: 5 dB (the test's candidates start at half of τ, so it can keep more than the ridge at τ); 0.062
+#: on the 5 kHz band (c/2B 34 mm) and 0.066 on a box 20 cm taller than the object, whose clouds
+#: lost most of the surface (surface F1 0.06 and a 3-piece mesh 20x the demo's Chamfer-L2; Reed's
+#: field in that box, an 11-piece foam: 0.083); 0.04-0.13 on backprojections of the nine sparse
+#: (360-ping) scenes, whose ridge without the test is sidelobe foam; on the real AirSAS bunny
+#: (27,000 pings): backprojection 0.073, Reed 0.387 and SH-SAS 0.535. 0.2 lies between, a factor
+#: of 1.9 from the lowest good result. Below it the extraction asks whether the ridge without the
+#: test is foam (``foam_span``) and the diagnostics warn (``surface_unclear``).
+SURFACE_KEPT_LIMIT = 0.2
 
 
 class ExtractConfig(BaseModel):
@@ -149,6 +172,12 @@ class ExtractConfig(BaseModel):
                                     "ridge (module doc, step 2): when more than this share of it lies below "
                                     "τ, those points go and each piece must reach Otsu's level of the ridge's "
                                     "magnitudes; None: off")
+    starved_share: float | None = Field(SURFACE_KEPT_LIMIT, gt=0, le=1, description="when the contrast "
+                                        "test keeps less than this share of the ridge at or above τ and "
+                                        "that ridge spans less than foam_span of the box, it keeps the "
+                                        "ridge at or above τ instead (module doc, step 2); None: off")
+    foam_span: float = Field(0.5, gt=0, le=1, description="a ridge whose points span at least this share "
+                             "of the scene box's volume (span_share) is sidelobe foam, not a starved surface")
     min_piece: float = Field(0.01, ge=0, lt=1, description="ridge pieces with fewer points than this share "
                              "of the largest piece's are dropped as specks unless they lie within "
                              "piece_reach of a larger piece (module doc, step 2)")
@@ -286,6 +315,16 @@ def local_contrast(norm: np.ndarray, spacing: np.ndarray, window: float,
     return ratio.astype(np.float32)
 
 
+def span_share(points: np.ndarray, grid: Grid) -> float:
+    """The share of ``grid``'s box volume that the box of ``points`` (P, 3), m, spans between their
+    2nd and 98th percentiles on each axis (a few stray points do not stretch it); 0 when empty."""
+    if len(points) == 0:
+        return 0.0
+    lo, hi = np.percentile(points, [2.0, 98.0], axis=0)
+    box = np.asarray(grid.box_max, dtype=np.float64) - np.asarray(grid.box_min, dtype=np.float64)
+    return float(np.prod(np.clip(hi - lo, 0.0, None)) / np.prod(box))
+
+
 def inside_support(support: np.ndarray, spacing: np.ndarray, margin: float) -> np.ndarray:
     """(X, Y, Z) bool: the voxels of ``support`` (X, Y, Z bool) at least ``margin`` m from every
     voxel outside it (all of it when nothing lies outside)."""
@@ -372,6 +411,11 @@ def ridge_cloud(volume: Volume, tau: float, config: ExtractConfig | None = None,
         # too coarse or too sparse an image for the contrast test (the object fills the window):
         # fewer points than voxels along one axis of the box is no surface; keep the ridge above τ
         r = ridge(norm, norm >= tau, lo, grid.spacing, sigma)
+    elif cfg.starved_share is not None:
+        full = ridge(norm, norm >= tau, lo, grid.spacing, sigma)
+        if len(r) < cfg.starved_share * len(full) and span_share(full.points, grid) < cfg.foam_span:
+            # the test starved a surface rather than removing foam (module doc, step 2)
+            r = full
     if cfg.fog_share is not None:
         r = without_fog(r, norm, tau, cfg.fog_share)
     if cfg.piece_level is not None and len(r):
