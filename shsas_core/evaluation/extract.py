@@ -183,6 +183,9 @@ class ExtractConfig(BaseModel):
                              "piece_reach of a larger piece (module doc, step 2)")
     trim: float = Field(1.45, gt=0, description="Poisson faces farther than this many range resolutions "
                         "from every surface point are cut")
+    sheet_trim: float | None = Field(None, gt=0, description="Poisson faces farther than this many range "
+                                     "resolutions off the sheet of their nearest surface points (along "
+                                     "those points' normals) are cut; None: no such cut")
     faces_per_point: float = Field(2.0, gt=0, description="face budget of the simplified mesh per surface point")
     max_faces: int = Field(200_000, ge=100, description="most faces of the simplified mesh")
     mesh_min_piece: float = Field(0.05, ge=0, lt=1, description="mesh pieces with less area than this "
@@ -464,7 +467,8 @@ def surface_mesh(cloud: PointCloud, spacing: float, config: ExtractConfig | None
     # only crumples the surface between the points
     return poisson_mesh(pts, nrm, max(spacing, cfg.poisson_cell * res), trim=cfg.trim * res,
                         faces_per_point=cfg.faces_per_point, max_faces=cfg.max_faces,
-                        min_piece=cfg.mesh_min_piece)
+                        min_piece=cfg.mesh_min_piece,
+                        sheet_trim=None if cfg.sheet_trim is None else cfg.sheet_trim * res)
 
 
 def extract(volume: Volume, config: ExtractConfig | None = None, sensors: np.ndarray | None = None,

@@ -21,6 +21,9 @@ from scipy.spatial import cKDTree
 
 from shsas_core.common.errors import ShsasError
 
+#: Points a vertex's sheet is fitted from (:func:`sheet_offset`).
+SHEET_NEIGHBOURS = 8
+
 
 def _empty_mesh():
     import trimesh
@@ -64,6 +67,16 @@ def screened_poisson(points: np.ndarray, normals: np.ndarray, depth: int, point_
     return np.asarray(m.vertex_matrix(), dtype=np.float64), np.asarray(m.face_matrix(), dtype=np.int64)
 
 
+def keep_vertices(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The faces whose three corners ``keep`` (V,) bool marks, and the vertices they use,
+    re-indexed: ``(vertices, faces)``."""
+    f = faces[keep[faces].all(1)]
+    used = np.unique(f)
+    remap = np.full(len(vertices), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return vertices[used], remap[f]
+
+
 def trim_to_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
                    distance: float) -> tuple[np.ndarray, np.ndarray]:
     """Drop the faces with a corner farther than ``distance`` (m) from every point, and the
@@ -71,12 +84,36 @@ def trim_to_points(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     if len(faces) == 0 or len(points) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     d, _ = cKDTree(points).query(vertices, distance_upper_bound=distance * 1.0001)
-    near = np.isfinite(d) & (d <= distance)
-    f = faces[near[faces].all(1)]
-    used = np.unique(f)
-    remap = np.full(len(vertices), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return vertices[used], remap[f]
+    return keep_vertices(vertices, faces, np.isfinite(d) & (d <= distance))
+
+
+def sheet_offset(vertices: np.ndarray, points: np.ndarray, normals: np.ndarray, reach: float,
+                 k: int = SHEET_NEIGHBOURS) -> np.ndarray:
+    """Each vertex's distance off the sheet of its nearest points: the mean of ``|(v - p)·n|``
+    over its ``k`` nearest points within ``reach`` (m); inf where none lies that near.
+
+    Args:
+        vertices: (V, 3) m. points, normals: (P, 3) m and unit normals.
+    Returns:
+        (V,) m.
+    """
+    d, idx = cKDTree(points).query(vertices, k=min(k, len(points)), distance_upper_bound=reach)
+    d, idx = d.reshape(len(vertices), -1), idx.reshape(len(vertices), -1)
+    near = np.isfinite(d)
+    idx = np.where(near, idx, 0)
+    along = np.abs(np.einsum("vkc,vkc->vk", vertices[:, None, :] - points[idx], normals[idx]))
+    count = near.sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, (along * near).sum(1) / count, np.inf)
+
+
+def trim_off_sheet(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, normals: np.ndarray,
+                   distance: float, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the faces with a corner farther than ``distance`` (m) off the sheet of the points
+    within ``reach`` (m) of it (:func:`sheet_offset`). Returns ``(vertices, faces)`` re-indexed."""
+    if len(faces) == 0 or len(points) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    return keep_vertices(vertices, faces, sheet_offset(vertices, points, normals, reach) <= distance)
 
 
 def simplify(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
@@ -105,9 +142,11 @@ def drop_small_components(mesh, min_share: float):
 
 
 def poisson_mesh(points: np.ndarray, normals: np.ndarray, spacing: float, *, trim: float,
-                 faces_per_point: float, max_faces: int, min_piece: float, point_weight: float = 4.0):
+                 faces_per_point: float, max_faces: int, min_piece: float, point_weight: float = 4.0,
+                 sheet_trim: float | None = None):
     """The module's chain: Poisson at a depth resolving ``spacing`` (m), trimmed to ``trim`` (m)
-    from the points, pieces under ``min_piece`` of the largest's area dropped, simplified to
+    from the points (and, when ``sheet_trim`` is given, to ``sheet_trim`` m off their sheet),
+    pieces under ``min_piece`` of the largest's area dropped, simplified to
     ``min(max_faces, faces_per_point * P)`` faces.
 
     Returns:
@@ -123,6 +162,8 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, spacing: float, *, tri
     extent = float(np.max(pts.max(0) - pts.min(0)))
     v, f = screened_poisson(pts, normals, poisson_depth(extent, spacing), point_weight)
     v, f = trim_to_points(v, f, pts, trim)
+    if sheet_trim is not None:
+        v, f = trim_off_sheet(v, f, pts, np.asarray(normals, dtype=np.float64), sheet_trim, trim)
     if len(f) == 0:
         return _empty_mesh()
     budget = int(min(max_faces, max(4, faces_per_point * len(pts))))
