@@ -78,8 +78,11 @@ Default (``surface = "ridge"``, ``mesher = "poisson"``), for every method:
 5. **Mesh:** screened Poisson through the oriented points, minus the range sidelobes of brighter
    points (a weaker point standing in front of a brighter one's sheet, within ``sidelobe_reach``
    range resolutions along its normal; the cloud keeps them), on an octree no finer than
-   ``poisson_cell`` range resolutions, trimmed to ``trim`` range resolutions from the points,
-   simplified (:mod:`shsas_core.evaluation.meshing`).
+   ``poisson_cell`` range resolutions, trimmed to ``trim`` range resolutions from the points
+   and to ``sheet_trim`` off their sheet (Poisson's own closure, a lid over a bowl's mouth or a
+   bend past the data's edge, leaves the sheet of the nearest points; a bridge across a gap in
+   the sheet does not: docs/decisions/sheet-trim.md), simplified
+   (:mod:`shsas_core.evaluation.meshing`).
 
 ``surface = "threshold"`` keeps every voxel centre at or above τ (no ridge, no contrast test) and
 ``mesher = "marching_cubes"`` meshes the normalised magnitude's iso-surface at τ: together they
@@ -183,9 +186,10 @@ class ExtractConfig(BaseModel):
                              "piece_reach of a larger piece (module doc, step 2)")
     trim: float = Field(1.45, gt=0, description="Poisson faces farther than this many range resolutions "
                         "from every surface point are cut")
-    sheet_trim: float | None = Field(None, gt=0, description="Poisson faces farther than this many range "
+    sheet_trim: float | None = Field(0.75, gt=0, description="Poisson faces farther than this many range "
                                      "resolutions off the sheet of their nearest surface points (along "
-                                     "those points' normals) are cut; None: no such cut")
+                                     "those points' normals) are cut; None: no such cut "
+                                     "(docs/decisions/sheet-trim.md)")
     faces_per_point: float = Field(2.0, gt=0, description="face budget of the simplified mesh per surface point")
     max_faces: int = Field(200_000, ge=100, description="most faces of the simplified mesh")
     mesh_min_piece: float = Field(0.05, ge=0, lt=1, description="mesh pieces with less area than this "

@@ -35,7 +35,7 @@ from shsas_core.spec.catalogue import REGISTRY
 from shsas_core.spec.job import EXTRACTION_FIELDS, ReconstructionSpec
 
 #: Bump when extraction changes: finished runs then re-extract from their saved volumes.
-EXTRACT_VERSION = 11
+EXTRACT_VERSION = 12
 
 
 @dataclasses.dataclass(frozen=True)
